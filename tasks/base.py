@@ -1,0 +1,118 @@
+"""Task API and the open task registry.
+
+A task owns a batch of ``num_envs`` MuJoCo environments on the CPU and steps them together::
+
+    task = tasks.make("cartpole_balance", num_envs=64, seed=0, overrides={"episode_length": 200})
+    obs, critic_obs = task.reset()                  # [M, obs_dim], [M, critic_obs_dim] float32
+    out = task.step(action)                         # action [M, action_dim] float32
+    out.obs / out.critic_obs                        # next observation, AFTER auto-reset
+    out.next_obs / out.next_critic_obs              # true successor, BEFORE auto-reset (for
+                                                    # bootstrapping at truncation, replay buffers)
+    out.reward [M], out.terminated [M] bool, out.truncated [M] bool (time limit; never both)
+    out.reward_terms {name: [M]}                    # each term's scaled contribution this step
+
+Environments that end (terminated or truncated) are reset inside ``step``; nothing per env
+happens in Python beyond the MuJoCo step calls. Observation/reward math is written against the
+array-API shim so the MJX variant can reuse it.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from unilab_jax.config import apply_overrides
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskSpec:
+    """What a task declares; buffers in shared memory are built from it."""
+
+    name: str
+    obs_dim: int  # actor observation
+    critic_obs_dim: int  # privileged critic observation
+    action_dim: int
+    episode_length: int  # control steps before truncation
+    ctrl_dt: float
+    reward_terms: tuple[str, ...]
+    privileged_dim: int = 0  # extrinsics vector for teacher/student methods (0: none)
+
+
+class StepOut(NamedTuple):
+    obs: np.ndarray
+    critic_obs: np.ndarray
+    next_obs: np.ndarray
+    next_critic_obs: np.ndarray
+    reward: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    reward_terms: dict[str, np.ndarray]
+
+
+class Task(abc.ABC):
+    """Base class of batched CPU tasks. Subclasses set ``spec`` in ``__init__``."""
+
+    spec: TaskSpec
+    config: Any
+
+    def __init__(self, config: Any, num_envs: int, seed: int):
+        if num_envs <= 0:
+            raise ValueError(f"num_envs must be positive, got {num_envs}")
+        self.config = config
+        self.num_envs = int(num_envs)
+        self.seed = int(seed)
+
+    @abc.abstractmethod
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        """Resets every environment; returns (obs, critic_obs)."""
+
+    @abc.abstractmethod
+    def step(self, action: np.ndarray) -> StepOut:
+        """Steps every environment one control step (auto-resetting those that end)."""
+
+    def close(self) -> None:
+        """Releases resources (nothing by default)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Entry:
+    factory: Callable[..., Task]
+    default_config: Callable[[], Any]
+
+
+_REGISTRY: dict[str, _Entry] = {}
+
+
+def register(name: str, factory: Callable[..., Task], default_config: Callable[[], Any]) -> None:
+    """Registers a task: ``factory(config, num_envs, seed) -> Task``; ``default_config() -> dataclass``."""
+    _REGISTRY[name] = _Entry(factory, default_config)
+
+
+def names() -> list[str]:
+    _load_builtin()
+    return sorted(_REGISTRY)
+
+
+def _entry(name: str) -> _Entry:
+    _load_builtin()
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown task {name!r}; registered tasks: {sorted(_REGISTRY)}")
+    return _REGISTRY[name]
+
+
+def default_config(name: str) -> Any:
+    return _entry(name).default_config()
+
+
+def make(name: str, num_envs: int, seed: int = 0, overrides: Mapping[str, Any] | None = None) -> Task:
+    entry = _entry(name)
+    config = apply_overrides(entry.default_config(), overrides)
+    return entry.factory(config, num_envs, seed)
+
+
+def _load_builtin() -> None:
+    import tasks.builtin  # noqa: F401  (registers the built-in tasks)

@@ -1,0 +1,83 @@
+"""Frozen config dataclasses with generic, checked overrides.
+
+Every algorithm has one frozen dataclass config and every task a ``default_config()``. Overrides come
+as ``{"key": value}`` or ``["key=value", ...]`` strings (from the ``--config`` flag); unknown keys
+are rejected with the list of valid ones, and values are converted to the field's declared type.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import typing
+from collections.abc import Iterable, Mapping
+from typing import Any, TypeVar
+
+C = TypeVar("C")
+
+
+class ConfigError(ValueError):
+    """A bad override: unknown key or a value of the wrong type."""
+
+
+def _convert(name: str, value: Any, typ: Any) -> Any:
+    origin = typing.get_origin(typ)
+    if isinstance(value, str) and typ is not str:
+        try:
+            value = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            if typ in (bool,) and value.lower() in ("true", "false"):
+                value = value.lower() == "true"
+            elif origin is typing.Union or typ is Any:
+                pass
+            else:
+                raise ConfigError(f"config key {name!r}: cannot parse {value!r} as {typ}") from None
+    if typ is float and isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    if typ is int and isinstance(value, bool):
+        raise ConfigError(f"config key {name!r}: expected int, got bool {value!r}")
+    if typ in (int, float, bool, str) and not isinstance(value, typ):
+        raise ConfigError(f"config key {name!r}: expected {typ.__name__}, got {value!r}")
+    if origin is tuple and isinstance(value, list | tuple):
+        args = typing.get_args(typ)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(name, v, args[0]) for v in value)
+        if len(args) != len(value):
+            raise ConfigError(f"config key {name!r}: expected {len(args)} values, got {value!r}")
+        return tuple(_convert(name, v, a) for v, a in zip(value, args))
+    return value
+
+
+def parse_overrides(items: Iterable[str] | Mapping[str, Any] | None) -> dict[str, Any]:
+    """``["a=1", "b=(2, 3)"]`` -> ``{"a": "1", "b": "(2, 3)"}`` (values converted later)."""
+    if items is None:
+        return {}
+    if isinstance(items, Mapping):
+        return dict(items)
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise ConfigError(f"config override {item!r} is not of the form key=value")
+        k, v = item.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def apply_overrides(config: C, overrides: Mapping[str, Any] | Iterable[str] | None) -> C:
+    """A copy of the frozen dataclass ``config`` with ``overrides`` applied (checked, typed)."""
+    overrides = parse_overrides(overrides)
+    if not overrides:
+        return config
+    hints = typing.get_type_hints(type(config))
+    fields = {f.name for f in dataclasses.fields(config)}
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        raise ConfigError(
+            f"unknown config key(s) {unknown} for {type(config).__name__}; valid keys: {sorted(fields)}"
+        )
+    typed = {k: _convert(k, v, hints[k]) for k, v in overrides.items()}
+    return dataclasses.replace(config, **typed)
+
+
+def as_dict(config: Any) -> dict[str, Any]:
+    return dataclasses.asdict(config)
