@@ -3,6 +3,7 @@
 Importing this package never imports jax (a Mac user may not have it).
 """
 
+from unilab_mlx import optim
 from unilab_mlx.backend import MlxBackend
 
-__all__ = ["MlxBackend"]
+__all__ = ["MlxBackend", "optim"]
