@@ -1,0 +1,12 @@
+"""PPO on cart-pole balance: the quick demo (`make train`) and CI learning check.
+
+    python experiments/ppo_cartpole.py --logdir=runs/ppo_cartpole
+"""
+
+from unilab_jax.cli import run_experiment
+
+RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "horizon": 32, "learning_rate": 1e-3,
+          "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.0, "gamma": 0.98, "desired_kl": 0.01}
+
+if __name__ == "__main__":
+    run_experiment(algo="ppo", task="cartpole_balance", recipe=RECIPE, default_total_steps=200_000)

@@ -1,0 +1,30 @@
+"""Algorithm registry (open: ``register(name, module_path)`` adds one defined elsewhere).
+
+An algorithm module declares ``SYNC``, ``BUFFER``, ``Config``, ``extras(action_dim)``, a shim-written
+``act(weights, obs, noise, deterministic)`` for the workers and ``make_learner(platform, config,
+spec)`` for the learner (see docs/ARCHITECTURE.md).
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+_ALGORITHMS: dict[str, str] = {
+    "ppo": "unilab_jax.algos.ppo",
+    "appo": "unilab_jax.algos.appo",
+}
+
+
+def register(name: str, module_path: str) -> None:
+    _ALGORITHMS[name] = module_path
+
+
+def names() -> list[str]:
+    return sorted(_ALGORITHMS)
+
+
+def get(name: str) -> ModuleType:
+    if name not in _ALGORITHMS:
+        raise ValueError(f"unknown algorithm {name!r}; registered: {names()}")
+    return importlib.import_module(_ALGORITHMS[name])

@@ -1,0 +1,155 @@
+"""PPO: lock-step, on trajectory slots.
+
+The worker side (``act``) and the loss are written against the shim; the JAX learner lives in
+``unilab_jax.algos.jax_learner`` and the MLX one in ``unilab_mlx``. Published weights are
+``{"actor": mlp, "log_std": [A], "obs_norm": RunningStats}``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from unilab_jax import nets
+from unilab_jax import xp as shim
+from unilab_jax.core import distributions, gae, normalizer, ppo, vtrace
+
+SYNC = "lockstep"
+BUFFER = "trajectory"
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyperparameters (rsl_rl-style defaults for legged locomotion)."""
+
+    actor_hidden: tuple[int, ...] = (512, 256, 128)
+    critic_hidden: tuple[int, ...] = (512, 256, 128)
+    activation: str = "elu"
+    init_log_std: float = 0.0
+    learning_rate: float = 1e-3
+    max_grad_norm: float = 1.0
+    horizon: int = 24  # control steps per trajectory slot
+    num_epochs: int = 5
+    num_minibatches: int = 4
+    gamma: float = 0.99
+    lam: float = 0.95
+    clip_eps: float = 0.2
+    value_clip: float = 0.2  # 0 disables value clipping
+    vf_coef: float = 1.0
+    ent_coef: float = 0.01
+    desired_kl: float = 0.01  # 0 disables the KL-adaptive learning rate
+    normalize_advantages: bool = True
+    normalize_obs: bool = True
+    obs_clip: float = 10.0
+
+
+def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Per-transition fields the policy writes besides the task's."""
+    return {"log_prob": ((), "float32"), "mean": ((action_dim,), "float32"),
+            "log_std": ((action_dim,), "float32")}
+
+
+def init_params(key: Any, obs_dim: int, critic_obs_dim: int, action_dim: int, config: PPOConfig,
+                xp: shim.Backend) -> dict[str, Any]:
+    ka, kc = xp.random.split(key, 2)
+    return {
+        "actor": nets.init(ka, [obs_dim, *config.actor_hidden, action_dim], xp, final_scale=0.01),
+        "critic": nets.init(kc, [critic_obs_dim, *config.critic_hidden, 1], xp, final_scale=1.0),
+        "log_std": xp.full((action_dim,), config.init_log_std, dtype=xp.float32),
+    }
+
+
+def policy_weights(params: dict[str, Any], obs_norm: Any) -> dict[str, Any]:
+    """What workers need to act: the published weight pytree."""
+    return {"actor": params["actor"], "log_std": params["log_std"], "obs_norm": obs_norm}
+
+
+def act(weights: dict[str, Any], obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
+    """Gaussian policy. obs [M, obs_dim], noise [M, A] -> action [M, A], extras."""
+    xp = shim.namespace(obs)
+    mean, log_std = _actor(weights, weights["obs_norm"], obs)
+    action = mean if deterministic else mean + xp.exp(log_std) * noise
+    log_prob = distributions.gaussian_log_prob(action, mean, log_std)
+    return action, {"log_prob": log_prob, "mean": mean, "log_std": log_std}
+
+
+def advantages(params: dict, critic_norm: Any, batch: dict, config: PPOConfig) -> tuple[Any, Any, Any]:
+    """Values, GAE advantages and returns for a [T, B] batch (truncation bootstraps)."""
+    xp = shim.namespace(batch["reward"])
+    values = value(params, critic_norm, batch["critic_obs"])
+    next_values = value(params, critic_norm, batch["next_critic_obs"])
+    adv, ret = gae.gae(batch["reward"], values, next_values, xp.astype(batch["terminated"], xp.float32),
+                       xp.astype(batch["truncated"], xp.float32), config.gamma, config.lam)
+    return xp.stop_gradient(values), xp.stop_gradient(adv), xp.stop_gradient(ret)
+
+
+def value(params: dict, critic_norm: Any, critic_obs: Any) -> Any:
+    v = nets.apply(params["critic"], normalizer.normalize(critic_norm, critic_obs))
+    return v[..., 0]
+
+
+def vtrace_targets(params: dict, obs_norm: Any, critic_norm: Any, batch: dict,
+                   config: PPOConfig) -> tuple[Any, Any, Any]:
+    """APPO targets for a [T, B] batch: values, V-trace policy-gradient advantages and vs.
+
+    Importance ratios compare the current policy with the behaviour policy that collected the
+    data (possibly several versions older).
+    """
+    xp = shim.namespace(batch["reward"])
+    values = value(params, critic_norm, batch["critic_obs"])
+    next_values = value(params, critic_norm, batch["next_critic_obs"])
+    mean, log_std = _actor(params, obs_norm, batch["obs"])
+    target_log_prob = distributions.gaussian_log_prob(batch["action"], mean, log_std)
+    terminated = xp.astype(batch["terminated"], xp.float32)
+    done = xp.maximum(terminated, xp.astype(batch["truncated"], xp.float32))
+    vs, pg_adv = vtrace.vtrace(values, next_values, batch["reward"], config.gamma * (1.0 - terminated),
+                               target_log_prob - batch["log_prob"], done, lam=config.lam)
+    return xp.stop_gradient(values), xp.stop_gradient(pg_adv), xp.stop_gradient(vs)
+
+
+def _actor(params: dict, obs_norm: Any, obs: Any) -> tuple[Any, Any]:
+    xp = shim.namespace(obs)
+    mean = nets.apply(params["actor"], normalizer.normalize(obs_norm, obs))
+    return mean, xp.broadcast_to(params["log_std"], mean.shape)
+
+
+def loss(params: dict, obs_norm: Any, critic_norm: Any, mb: dict, config: PPOConfig,
+         asymmetric_clip: bool = False) -> tuple[Any, dict]:
+    """PPO (or, with ``asymmetric_clip``, APPO) loss on a flat minibatch of N transitions.
+
+    ``mb`` fields are [N, ...]: obs, critic_obs, action, log_prob, mean, log_std (behaviour
+    policy), advantages, returns, values (at collection).
+    """
+    xp = shim.namespace(mb["obs"])
+    mean, log_std = _actor(params, obs_norm, mb["obs"])
+    new_log_prob = distributions.gaussian_log_prob(mb["action"], mean, log_std)
+    entropy = distributions.gaussian_entropy(log_std)
+    new_values = value(params, critic_norm, mb["critic_obs"])
+    if asymmetric_clip:
+        total, metrics = vtrace.appo_loss(new_log_prob, mb["log_prob"], mb["advantages"], new_values,
+                                          mb["returns"], entropy, config.clip_eps, config.vf_coef,
+                                          config.ent_coef, config.normalize_advantages)
+    else:
+        value_clip = config.value_clip if config.value_clip > 0 else None
+        total, metrics = ppo.ppo_loss(new_log_prob, mb["log_prob"], mb["advantages"], new_values, mb["values"],
+                                      mb["returns"], entropy, config.clip_eps, value_clip, config.vf_coef,
+                                      config.ent_coef, config.normalize_advantages)
+    kl = xp.mean(distributions.gaussian_kl(mb["mean"], mb["log_std"], xp.stop_gradient(mean),
+                                           xp.stop_gradient(log_std)))
+    return total, {**metrics, "kl": kl}
+
+
+Config = PPOConfig
+
+
+def make_learner(platform: str, config: PPOConfig, spec: Any):
+    """The learner for ``platform`` ('jax' or 'mlx')."""
+    if platform == "jax":
+        from unilab_jax.algos.ppo_jax import Learner
+
+        return Learner(config, spec, use_vtrace=False)
+    elif platform == "mlx":
+        from unilab_mlx.ppo import Learner
+
+        return Learner(config, spec, use_vtrace=False)
+    raise ValueError(f"PPO has no learner for platform {platform!r} yet")

@@ -1,0 +1,126 @@
+"""JAX learner for PPO and APPO: one jitted update, scans over epochs and minibatches inside."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from tasks.base import TaskSpec
+from unilab_jax import xp as shim
+from unilab_jax.algos import ppo
+from unilab_jax.core import normalizer
+from unilab_jax.core import ppo as ppo_core
+
+XP = shim.get("jax")
+# Fields of a trajectory batch the update reads ([T, B, ...]).
+BATCH_FIELDS = ("obs", "critic_obs", "next_critic_obs", "action", "reward", "terminated", "truncated",
+                "log_prob", "mean", "log_std", "policy_version")
+
+
+class TrainState(NamedTuple):
+    params: dict
+    opt_state: Any
+    obs_norm: normalizer.RunningStats
+    critic_norm: normalizer.RunningStats
+    key: jax.Array
+    updates: jax.Array  # number of learner updates so far (int32)
+
+
+def make_optimizer(config: ppo.PPOConfig) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
+                       optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate))
+
+
+def learning_rate(opt_state: Any) -> jax.Array:
+    return opt_state[1].hyperparams["learning_rate"]
+
+
+def _with_learning_rate(opt_state: Any, lr: jax.Array) -> Any:
+    inner = opt_state[1]
+    hyper = {**inner.hyperparams, "learning_rate": lr}
+    return (opt_state[0], inner._replace(hyperparams=hyper), *opt_state[2:])
+
+
+class Learner:
+    """``init(key) -> TrainState``; ``update(state, batch) -> (state, metrics)``; ``weights(state)``.
+
+    ``vtrace=True`` gives APPO: advantages and value targets come from V-trace with importance
+    ratios between the current policy and the (possibly stale) behaviour policy, and the policy
+    loss uses the asymmetric clip [1/(1+eps), 1+eps].
+    """
+
+    def __init__(self, config: ppo.PPOConfig, spec: TaskSpec, use_vtrace: bool = False):
+        self.config, self.spec, self.use_vtrace = config, spec, use_vtrace
+        self.tx = make_optimizer(config)
+        self.update = jax.jit(self._update, donate_argnums=0)
+
+    def init(self, key: jax.Array) -> TrainState:
+        k_params, k_state = jax.random.split(key)
+        params = ppo.init_params(k_params, self.spec.obs_dim, self.spec.critic_obs_dim, self.spec.action_dim,
+                                 self.config, XP)
+        return TrainState(params=params, opt_state=self.tx.init(params),
+                          obs_norm=normalizer.stats_init(self.spec.obs_dim, XP),
+                          critic_norm=normalizer.stats_init(self.spec.critic_obs_dim, XP),
+                          key=k_state, updates=jnp.zeros((), jnp.int32))
+
+    @staticmethod
+    def weights(state: TrainState) -> dict:
+        return ppo.policy_weights(state.params, state.obs_norm)
+
+    # -- the update ---------------------------------------------------------------------------
+    def _targets(self, state: TrainState, batch: dict) -> tuple[jax.Array, jax.Array, jax.Array]:
+        if self.use_vtrace:
+            return ppo.vtrace_targets(state.params, state.obs_norm, state.critic_norm, batch, self.config)
+        return ppo.advantages(state.params, state.critic_norm, batch, self.config)
+
+    def _update(self, state: TrainState, batch: dict) -> tuple[TrainState, dict]:
+        cfg = self.config
+        values, adv, ret = self._targets(state, batch)
+        t, b = batch["reward"].shape
+        n = t * b
+        mb_size = n // cfg.num_minibatches
+        flat = {k: batch[k].reshape(n, *batch[k].shape[2:]) for k in ("obs", "critic_obs", "action", "log_prob",
+                                                                      "mean", "log_std")}
+        flat.update(advantages=adv.reshape(n), returns=ret.reshape(n), values=values.reshape(n))
+
+        def loss_fn(params: dict, mb: dict) -> tuple[jax.Array, dict]:
+            return ppo.loss(params, state.obs_norm, state.critic_norm, mb, cfg, asymmetric_clip=self.use_vtrace)
+
+        grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+
+        def minibatch_step(carry: tuple, mb: dict) -> tuple[tuple, dict]:
+            params, opt_state = carry
+            (_, metrics), grads = grad_fn(params, mb)
+            lr = learning_rate(opt_state)
+            if cfg.desired_kl > 0:
+                # rsl_rl rule: adapt from the KL between the collecting policy and the current one.
+                lr = ppo_core.kl_adaptive_lr(lr, metrics["kl"], cfg.desired_kl)
+                opt_state = _with_learning_rate(opt_state, lr)
+            updates, opt_state = self.tx.update(grads, opt_state, params)
+            params = optax.apply_updates(params, updates)
+            metrics = {**metrics, "learning_rate": lr, "grad_norm": optax.global_norm(grads)}
+            return (params, opt_state), metrics
+
+        def epoch(carry: tuple, key: jax.Array) -> tuple[tuple, dict]:
+            perm = jax.random.permutation(key, n)[: mb_size * cfg.num_minibatches]
+            mbs = jax.tree_util.tree_map(
+                lambda x: x[perm].reshape(cfg.num_minibatches, mb_size, *x.shape[1:]), flat)
+            return jax.lax.scan(minibatch_step, carry, mbs)
+
+        keys = jax.random.split(state.key, cfg.num_epochs + 1)
+        (params, opt_state), metrics = jax.lax.scan(epoch, (state.params, state.opt_state), keys[1:])
+        metrics = jax.tree_util.tree_map(jnp.mean, metrics)
+        metrics["value_mean"] = jnp.mean(values)
+        metrics["advantage_std"] = jnp.std(adv)
+        obs_norm, critic_norm = state.obs_norm, state.critic_norm
+        if cfg.normalize_obs:
+            # Statistics move after the update, so the ratios above use the normalization the
+            # workers used when they acted.
+            obs_norm = normalizer.stats_update(obs_norm, batch["obs"].reshape(n, -1))
+            critic_norm = normalizer.stats_update(critic_norm, batch["critic_obs"].reshape(n, -1))
+        new_state = TrainState(params=params, opt_state=opt_state, obs_norm=obs_norm, critic_norm=critic_norm,
+                               key=keys[0], updates=state.updates + 1)
+        return new_state, metrics

@@ -1,0 +1,122 @@
+"""Flags shared by every experiment script, validated before any worker starts.
+
+An experiment is a few lines::
+
+    from unilab_jax.cli import run_experiment
+    run_experiment(algo="ppo", task="go1_joystick_flat", recipe={"horizon": 24}, flag_defaults={...})
+
+Generic overrides: ``--config key=value`` (algorithm hyperparameters) and ``--task_config key=value``
+(task parameters), repeatable; unknown keys are rejected with the list of valid ones.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from collections.abc import Mapping
+from typing import Any
+
+from absl import app, flags
+from absl import logging as absl_logging
+
+PLATFORMS = ("jax", "mlx")
+
+FLAGS = flags.FLAGS
+flags.DEFINE_string("platform", "jax", f"learner platform, one of {PLATFORMS}")
+flags.DEFINE_string("task", None, "registered task name (default: the experiment's task)")
+flags.DEFINE_integer("num_workers", 2, "rollout worker processes")
+flags.DEFINE_integer("envs_per_worker", 32, "MuJoCo environments stepped by each worker")
+flags.DEFINE_integer("total_steps", None, "environment steps to train for (default: the experiment's)")
+flags.DEFINE_integer("seed", 0, "random seed")
+flags.DEFINE_string("logdir", None, "where TensorBoard events, metrics.jsonl and checkpoints go")
+flags.DEFINE_bool("resume", False, "continue the run saved in --logdir")
+flags.DEFINE_integer("eval_every", 0, "env steps between deterministic evaluations (0: at the end only)")
+flags.DEFINE_integer("eval_envs", 16, "environments in each evaluation")
+flags.DEFINE_integer("checkpoint_every", 0, "env steps between checkpoints (0: at evaluations and the end)")
+flags.DEFINE_bool("serial", False, "run the workers in the learner process (debugging)")
+flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
+flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
+
+
+class FlagError(ValueError):
+    """A bad flag value, reported before anything starts."""
+
+
+def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
+              default_total_steps: int) -> tuple[Any, Any, Any, dict[str, Any]]:
+    """Validates every flag; returns (RunConfig, algorithm module, algorithm config, task overrides)."""
+    import tasks
+    from unilab_jax import algos
+    from unilab_jax.config import apply_overrides, parse_overrides
+    from unilab_jax.trainer import RunConfig
+
+    if FLAGS.platform not in PLATFORMS:
+        raise FlagError(f"--platform={FLAGS.platform!r}: choose one of {PLATFORMS}")
+    try:
+        if FLAGS.platform == "jax":
+            import jax  # noqa: F401
+        else:
+            import unilab_mlx  # noqa: F401
+    except ImportError as e:
+        raise FlagError(f"--platform={FLAGS.platform}: its packages are not installed ({e}); "
+                        f"pip install 'unilab-jax[{FLAGS.platform}]'") from e
+    task_name = FLAGS.task or task
+    if task_name not in tasks.names():
+        raise FlagError(f"--task={task_name!r}: registered tasks are {tasks.names()}")
+    for name in ("num_workers", "envs_per_worker", "eval_envs"):
+        if getattr(FLAGS, name) < 1:
+            raise FlagError(f"--{name} must be at least 1, got {getattr(FLAGS, name)}")
+    total = FLAGS.total_steps if FLAGS.total_steps is not None else default_total_steps
+    if total < 1:
+        raise FlagError(f"--total_steps must be positive, got {total}")
+    for name in ("eval_every", "checkpoint_every"):
+        if getattr(FLAGS, name) < 0:
+            raise FlagError(f"--{name} must be >= 0, got {getattr(FLAGS, name)}")
+    module = algos.get(algo)
+    config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(FLAGS.config))
+    task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
+    task_config = apply_overrides(tasks.default_config(task_name), task_overrides)  # rejects unknown keys
+    task_overrides = {k: getattr(task_config, k) for k in task_overrides}
+    batch = config.horizon * FLAGS.num_workers * FLAGS.envs_per_worker
+    if hasattr(config, "num_minibatches") and batch < config.num_minibatches:
+        raise FlagError(f"a batch of {batch} transitions cannot make {config.num_minibatches} minibatches")
+    logdir = FLAGS.logdir or os.path.join("runs", f"{algo}_{task_name}_s{FLAGS.seed}")
+    if FLAGS.resume and not os.path.isdir(os.path.join(logdir, "checkpoints")):
+        raise FlagError(f"--resume: no checkpoints under {logdir!r}")
+    try:
+        os.makedirs(logdir, exist_ok=True)
+    except OSError as e:
+        raise FlagError(f"--logdir={logdir!r} cannot be created: {e}") from e
+    run = RunConfig(algo=algo, task=task_name, platform=FLAGS.platform, num_workers=FLAGS.num_workers,
+                    envs_per_worker=FLAGS.envs_per_worker, total_steps=total, seed=FLAGS.seed, logdir=logdir,
+                    resume=FLAGS.resume, eval_every=FLAGS.eval_every, eval_envs=FLAGS.eval_envs,
+                    checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial)
+    return run, module, config, task_overrides
+
+
+def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None,
+                   task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000) -> None:
+    """Parses the shared flags, validates them, trains, prints the summary."""
+
+    def main(argv: list[str]) -> None:
+        if FLAGS["verbosity"].using_default_value:
+            absl_logging.set_verbosity(absl_logging.WARNING)  # orbax logs every save at INFO
+        if len(argv) > 1:
+            raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+        from unilab_jax.config import ConfigError
+
+        try:
+            run, module, config, task_overrides = build_run(algo, task, recipe or {}, task_recipe or {},
+                                                            default_total_steps)
+        except (FlagError, ConfigError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
+        from unilab_jax.trainer import Trainer
+
+        summary = Trainer(run, module, config, task_overrides).train()
+        print(json.dumps(summary, indent=2))
+        print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
+        print(f"checkpoints: {summary['checkpoints']}")
+
+    app.run(main)

@@ -1,0 +1,62 @@
+"""TensorBoard scalars (tensorboardX), a JSON-lines copy of every logged row, and a rich progress bar."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from typing import Any
+
+
+class MetricLogger:
+    """Writes scalars to TensorBoard event files and ``metrics.jsonl`` under ``logdir``."""
+
+    def __init__(self, logdir: str):
+        from tensorboardX import SummaryWriter
+
+        os.makedirs(logdir, exist_ok=True)
+        self.logdir = logdir
+        self._tb = SummaryWriter(logdir=logdir, flush_secs=10)
+        self._jsonl = open(os.path.join(logdir, "metrics.jsonl"), "a")  # noqa: SIM115 (closed in close())
+
+    def log(self, step: int, scalars: dict[str, float]) -> None:
+        clean = {k: float(v) for k, v in scalars.items() if v is not None and math.isfinite(float(v))}
+        for k, v in clean.items():
+            self._tb.add_scalar(k, v, global_step=step)
+        self._jsonl.write(json.dumps({"step": int(step), **clean}) + "\n")
+        self._jsonl.flush()
+
+    def close(self) -> None:
+        self._tb.flush()
+        self._tb.close()
+        self._jsonl.close()
+
+
+class ProgressBar:
+    """A rich progress bar with env steps/s and ETA; plain log lines when stdout is not a terminal."""
+
+    def __init__(self, total: int, start: int = 0):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self._progress = Progress(TextColumn("[bold]training"), BarColumn(), MofNCompleteColumn(),
+                                  TextColumn("{task.fields[rate]} steps/s"), TextColumn("return {task.fields[ret]}"),
+                                  TimeRemainingColumn(), disable=not sys.stdout.isatty())
+        self._task = self._progress.add_task("train", total=total, completed=start, rate="-", ret="-")
+        self._progress.start()
+        self._last_print = 0.0
+        self._start_step = start
+        self._t0 = time.time()
+
+    def update(self, step: int, episode_return: float | None) -> None:
+        elapsed = max(time.time() - self._t0, 1e-9)
+        rate = (step - self._start_step) / elapsed
+        ret = f"{episode_return:.3f}" if episode_return is not None else "-"
+        self._progress.update(self._task, completed=step, rate=f"{rate:,.0f}", ret=ret)
+        if not sys.stdout.isatty() and time.time() - self._last_print > 10.0:
+            self._last_print = time.time()
+            print(f"step {step:,}  {rate:,.0f} env steps/s  episode return {ret}", flush=True)
+
+    def close(self) -> None:
+        self._progress.stop()

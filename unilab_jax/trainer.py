@@ -1,0 +1,268 @@
+"""The training loop for trajectory (on-policy) algorithms: PPO and APPO.
+
+Workers collect into shared-memory slots while the learner updates; a prefetch thread pulls the
+next batch and moves it to the device while the jitted update of the previous one runs. In
+lock-step mode the workers wait for the new weights; in async mode they never wait and the
+policy lag (learner version minus the version that produced each transition) is logged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import queue
+import signal
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from unilab_jax import nets
+from unilab_jax.metrics import MetricLogger, ProgressBar
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """Everything about a run that is not an algorithm or task hyperparameter."""
+
+    algo: str
+    task: str
+    platform: str = "jax"
+    num_workers: int = 2
+    envs_per_worker: int = 32
+    total_steps: int = 100_000
+    seed: int = 0
+    logdir: str = "runs/default"
+    resume: bool = False
+    eval_every: int = 0  # env steps between evaluations (0: only at the end)
+    eval_envs: int = 16
+    checkpoint_every: int = 0  # env steps between checkpoints (0: at evaluations and at the end)
+    serial: bool = False  # run the workers in-process (debugging, deterministic tests)
+
+
+def _learner_platform(platform: str) -> Any:
+    """Backend used to convert numpy batches for the learner."""
+    from unilab_jax import xp as shim
+
+    return shim.get(platform)
+
+
+class Trainer:
+    def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any]):
+        import tasks
+
+        self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, task_overrides
+        probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
+        self.spec = probe.spec
+        probe.close()
+        self.xp = _learner_platform(run.platform)
+        self.learner = algo_module.make_learner(run.platform, algo_config, self.spec)
+        self.logger = MetricLogger(run.logdir)
+        self.ckpt_dir = os.path.join(os.path.abspath(run.logdir), "checkpoints")
+        self._stop = threading.Event()
+
+    # -- state -----------------------------------------------------------------------------------
+    def _init_state(self) -> tuple[Any, dict[str, int]]:
+        state = self.learner.init(self.xp.random.key(self.run.seed))
+        counters = {"env_steps": 0, "updates": 0, "version": 0, "episodes": 0}
+        if self.run.resume:
+            from unilab_jax.checkpoint import Checkpointer
+
+            ckpt = Checkpointer(self.ckpt_dir)
+            if ckpt.latest_step() is None:
+                raise FileNotFoundError(f"--resume: no checkpoint under {self.ckpt_dir}")
+            state, meta = ckpt.restore(state, lambda a, like: self.xp.from_numpy(a))
+            ckpt.close()
+            counters = {k: int(v) for k, v in meta["counters"].items()}
+            if meta.get("task") != self.run.task or meta.get("algo") != self.run.algo:
+                raise ValueError(f"--resume: checkpoint is {meta.get('algo')}/{meta.get('task')}, "
+                                 f"not {self.run.algo}/{self.run.task}")
+        return state, counters
+
+    def _meta(self, counters: dict[str, int]) -> dict[str, Any]:
+        return {"counters": dict(counters), "algo": self.run.algo, "task": self.run.task,
+                "run": dataclasses.asdict(self.run), "config": dataclasses.asdict(self.config),
+                "task_overrides": {k: str(v) for k, v in self.task_overrides.items()}}
+
+    # -- evaluation ------------------------------------------------------------------------------
+    def evaluate(self, weights: dict, seed: int) -> dict[str, float]:
+        """Deterministic policy, one full episode in each of ``eval_envs`` environments."""
+        import tasks
+
+        task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
+                          overrides=self.task_overrides)
+        obs, _ = task.reset()
+        m = self.run.eval_envs
+        ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
+        alive = np.ones(m, dtype=bool)
+        zeros = np.zeros((m, self.spec.action_dim), np.float32)
+        for _ in range(self.spec.episode_length):
+            action, _ = self.algo.act(weights, obs, zeros, True)
+            out = task.step(np.asarray(action, np.float32))
+            ret += np.where(alive, out.reward, 0.0)
+            length += alive
+            alive &= ~(out.terminated | out.truncated)
+            obs = out.obs
+            if not alive.any():
+                break
+        task.close()
+        return {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
+                "eval/episode_length": float(length.mean())}
+
+    # -- the loop ----------------------------------------------------------------------------------
+    def train(self) -> dict[str, Any]:
+        from unilab_jax.runtime.pool import WorkerPool
+
+        run, t_start = self.run, time.time()
+        state, counters = self._init_state()
+        weights = nets.to_numpy(self.learner.weights(state))
+        pool = WorkerPool(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
+                          envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
+                          algo_module=self.algo.__name__, weight_template=weights,
+                          horizon=self.config.horizon, serial=run.serial)
+        from unilab_jax.checkpoint import Checkpointer
+
+        ckpt = Checkpointer(self.ckpt_dir)
+        prev_handler = signal.signal(signal.SIGTERM, self._on_sigterm) \
+            if threading.current_thread() is threading.main_thread() else None
+        steps_per_batch = self.config.horizon * run.num_workers * run.envs_per_worker
+        next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
+        next_ckpt = counters["env_steps"] + run.checkpoint_every if run.checkpoint_every else None
+        last_eval: dict[str, float] = {}
+        interrupted = False
+        prefetch: _Prefetcher | None = None
+        progress = ProgressBar(run.total_steps, counters["env_steps"])
+        try:
+            pool.start()
+            pool.publish(weights, counters["version"])
+            prefetch = _Prefetcher(pool, self.xp, self.spec.reward_terms)
+            t_last = time.time()
+            while counters["env_steps"] < run.total_steps and not self._stop.is_set():
+                batch, stats = prefetch.get()
+                lag = counters["version"] - batch.pop("_policy_version_np")
+                state, metrics = self.learner.update(state, batch)
+                counters["version"] += 1
+                counters["updates"] += 1
+                counters["env_steps"] += steps_per_batch
+                pool.publish(nets.to_numpy(self.learner.weights(state)), counters["version"])
+                counters["episodes"] += stats["episodes"]
+                now = time.time()
+                scalars = {f"loss/{k}": float(v) for k, v in metrics.items()}
+                scalars.update(stats["scalars"])
+                scalars.update({"perf/env_steps_per_s": steps_per_batch / max(now - t_last, 1e-9),
+                                "perf/learner_updates_per_s": 1.0 / max(now - t_last, 1e-9),
+                                "perf/policy_lag_mean": float(lag.mean()), "perf/policy_lag_max": float(lag.max()),
+                                "time/wall_s": now - t_start})
+                t_last = now
+                self.logger.log(counters["env_steps"], scalars)
+                progress.update(counters["env_steps"], scalars.get("episode/return"))
+                if next_eval is not None and counters["env_steps"] >= next_eval:
+                    last_eval = self._eval_and_log(state, counters, t_start)
+                    next_eval += run.eval_every
+                    ckpt.save(counters["env_steps"], state, self._meta(counters))
+                if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
+                    ckpt.save(counters["env_steps"], state, self._meta(counters))
+                    next_ckpt += run.checkpoint_every
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            progress.close()
+            if prefetch is not None:
+                prefetch.stop()
+            pool.close()
+            if prefetch is not None:
+                prefetch.join()
+            ckpt.save(counters["env_steps"], state, self._meta(counters))
+            ckpt.close()
+            if prev_handler is not None:
+                signal.signal(signal.SIGTERM, prev_handler)
+        interrupted = interrupted or self._stop.is_set()
+        if not interrupted:
+            last_eval = self._eval_and_log(state, counters, t_start)
+        self.logger.close()
+        summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
+                   "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
+                   "checkpoints": self.ckpt_dir, "interrupted": interrupted, **last_eval}
+        with open(os.path.join(run.logdir, "summary.json"), "w") as f:
+            json.dump(summary, f, indent=2)
+        return summary
+
+    def _eval_and_log(self, state: Any, counters: dict[str, int], t_start: float) -> dict[str, float]:
+        result = self.evaluate(nets.to_numpy(self.learner.weights(state)), seed=counters["updates"])
+        result["eval/wall_s"] = time.time() - t_start
+        self.logger.log(counters["env_steps"], result)
+        return result
+
+    def _on_sigterm(self, signum: int, frame: Any) -> None:
+        self._stop.set()
+
+
+class _Prefetcher:
+    """Collects the next batch and converts it for the learner while the current update runs."""
+
+    def __init__(self, pool: Any, xp: Any, reward_terms: tuple[str, ...], depth: int = 1,
+                 timeout: float = 600.0):
+        self._pool, self._xp, self._reward_terms, self._timeout = pool, xp, reward_terms, timeout
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="prefetch", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        try:
+            while not self._stop.is_set():
+                batch, info = self._pool.collect(timeout=self._timeout)
+                item = (_to_learner(batch, self._xp), _batch_stats(batch, self._reward_terms))
+                while not self._stop.is_set():
+                    try:
+                        self._queue.put(item, timeout=0.2)
+                        break
+                    except queue.Full:
+                        continue
+        except BaseException as e:  # surfaced to the learner thread (unless we are stopping)
+            if not self._stop.is_set():
+                self._queue.put(e)
+
+    def get(self) -> tuple[dict, dict]:
+        while True:
+            try:
+                item = self._queue.get(timeout=0.5)
+            except queue.Empty:
+                if not self._thread.is_alive():
+                    raise RuntimeError("prefetch thread stopped") from None
+                continue
+            if isinstance(item, BaseException):
+                raise item
+            return item
+
+    def stop(self) -> None:
+        """Asks the thread to stop; it exits once the pool closes (its collect then raises)."""
+        self._stop.set()
+
+    def join(self) -> None:
+        self._thread.join(timeout=10)
+
+
+_LEARNER_FIELDS = ("obs", "critic_obs", "next_critic_obs", "action", "reward", "terminated", "truncated",
+                   "log_prob", "mean", "log_std")
+
+
+def _to_learner(batch: dict[str, np.ndarray], xp: Any) -> dict[str, Any]:
+    out = {k: xp.from_numpy(batch[k]) for k in _LEARNER_FIELDS if k in batch}
+    out["_policy_version_np"] = np.asarray(batch["policy_version"])
+    return out
+
+
+def _batch_stats(batch: dict[str, np.ndarray], reward_terms: tuple[str, ...]) -> dict[str, Any]:
+    done = np.asarray(batch["terminated"], bool) | np.asarray(batch["truncated"], bool)
+    scalars: dict[str, float] = {}
+    if done.any():
+        scalars["episode/return"] = float(np.mean(batch["episode_return"][done]))
+        scalars["episode/length"] = float(np.mean(batch["episode_length"][done]))
+        scalars["episode/terminated_fraction"] = float(np.mean(np.asarray(batch["terminated"], bool)[done]))
+    scalars["reward/step_mean"] = float(np.mean(batch["reward"]))
+    for i, name in enumerate(reward_terms):
+        scalars[f"reward/{name}"] = float(np.mean(batch["reward_terms"][..., i]))
+    return {"episodes": int(done.sum()), "scalars": scalars}
