@@ -113,21 +113,22 @@ class Trainer:
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
+        from unilab_jax.checkpoint import Checkpointer
         from unilab_jax.runtime.pool import WorkerPool
 
-        run, t_start = self.run, time.time()
+        run, cfg, t_start = self.run, self.config, time.time()
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
+        replay = self.algo.BUFFER == "replay"
         pool = WorkerPool(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
                           envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
                           algo_module=self.algo.__name__, weight_template=weights,
-                          horizon=self.config.horizon, serial=run.serial)
-        from unilab_jax.checkpoint import Checkpointer
-
+                          horizon=getattr(cfg, "horizon", 32), serial=run.serial,
+                          replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
+                          if replay else 0)
         ckpt = Checkpointer(self.ckpt_dir)
         prev_handler = signal.signal(signal.SIGTERM, self._on_sigterm) \
             if threading.current_thread() is threading.main_thread() else None
-        steps_per_batch = self.config.horizon * run.num_workers * run.envs_per_worker
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
         next_ckpt = counters["env_steps"] + run.checkpoint_every if run.checkpoint_every else None
         last_eval: dict[str, float] = {}
@@ -137,25 +138,26 @@ class Trainer:
         try:
             pool.start()
             pool.publish(weights, counters["version"])
-            prefetch = _Prefetcher(pool, self.xp, self.spec.reward_terms)
-            t_last = time.time()
+            source = (_ReplaySource(pool, self.xp, cfg, counters, run.seed) if replay
+                      else _TrajectorySource(pool, self.xp, self.spec.reward_terms))
+            prefetch = _Prefetcher(source.produce)
+            t_last, steps_last = time.time(), counters["env_steps"]
             while counters["env_steps"] < run.total_steps and not self._stop.is_set():
                 batch, stats = prefetch.get()
-                lag = counters["version"] - batch.pop("_policy_version_np")
                 state, metrics = self.learner.update(state, batch)
-                counters["version"] += 1
                 counters["updates"] += 1
-                counters["env_steps"] += steps_per_batch
-                pool.publish(nets.to_numpy(self.learner.weights(state)), counters["version"])
-                counters["episodes"] += stats["episodes"]
+                publish = source.advance(counters, stats)
+                if publish:
+                    counters["version"] += 1
+                    pool.publish(nets.to_numpy(self.learner.weights(state)), counters["version"])
                 now = time.time()
                 scalars = {f"loss/{k}": float(v) for k, v in metrics.items()}
                 scalars.update(stats["scalars"])
-                scalars.update({"perf/env_steps_per_s": steps_per_batch / max(now - t_last, 1e-9),
+                scalars.update(source.pool_scalars())
+                scalars.update({"perf/env_steps_per_s": (counters["env_steps"] - steps_last) / max(now - t_last, 1e-9),
                                 "perf/learner_updates_per_s": 1.0 / max(now - t_last, 1e-9),
-                                "perf/policy_lag_mean": float(lag.mean()), "perf/policy_lag_max": float(lag.max()),
                                 "time/wall_s": now - t_start})
-                t_last = now
+                t_last, steps_last = now, counters["env_steps"]
                 self.logger.log(counters["env_steps"], scalars)
                 progress.update(counters["env_steps"], scalars.get("episode/return"))
                 if next_eval is not None and counters["env_steps"] >= next_eval:
@@ -200,11 +202,11 @@ class Trainer:
 
 
 class _Prefetcher:
-    """Collects the next batch and converts it for the learner while the current update runs."""
+    """Runs ``produce()`` in a thread, one item ahead, so collection, sampling and the host-to-device
+    copy overlap with the learner's update. Errors surface in the learner thread."""
 
-    def __init__(self, pool: Any, xp: Any, reward_terms: tuple[str, ...], depth: int = 1,
-                 timeout: float = 600.0):
-        self._pool, self._xp, self._reward_terms, self._timeout = pool, xp, reward_terms, timeout
+    def __init__(self, produce: Any, depth: int = 1):
+        self._produce = produce
         self._queue: queue.Queue = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="prefetch", daemon=True)
@@ -213,8 +215,9 @@ class _Prefetcher:
     def _loop(self) -> None:
         try:
             while not self._stop.is_set():
-                batch, info = self._pool.collect(timeout=self._timeout)
-                item = (_to_learner(batch, self._xp), _batch_stats(batch, self._reward_terms))
+                item = self._produce(self._stop)
+                if item is None:
+                    continue
                 while not self._stop.is_set():
                     try:
                         self._queue.put(item, timeout=0.2)
@@ -238,21 +241,91 @@ class _Prefetcher:
             return item
 
     def stop(self) -> None:
-        """Asks the thread to stop; it exits once the pool closes (its collect then raises)."""
+        """Asks the thread to stop; it exits once the pool closes (a pending collect then raises)."""
         self._stop.set()
 
     def join(self) -> None:
         self._thread.join(timeout=10)
 
 
-_LEARNER_FIELDS = ("obs", "critic_obs", "next_critic_obs", "action", "reward", "terminated", "truncated",
-                   "log_prob", "mean", "log_std")
+_TRAJECTORY_FIELDS = ("obs", "critic_obs", "next_critic_obs", "action", "reward", "terminated", "truncated",
+                      "log_prob", "mean", "log_std")
+_REPLAY_FIELDS = ("obs", "critic_obs", "action", "reward", "next_obs", "next_critic_obs", "terminated",
+                  "truncated")
 
 
-def _to_learner(batch: dict[str, np.ndarray], xp: Any) -> dict[str, Any]:
-    out = {k: xp.from_numpy(batch[k]) for k in _LEARNER_FIELDS if k in batch}
-    out["_policy_version_np"] = np.asarray(batch["policy_version"])
-    return out
+class _TrajectorySource:
+    """On-policy: one slot per worker (lock-step) or the next ready slots (async) per update."""
+
+    def __init__(self, pool: Any, xp: Any, reward_terms: tuple[str, ...]):
+        self._pool, self._xp, self._terms = pool, xp, reward_terms
+
+    def produce(self, stop: threading.Event) -> tuple[dict, dict]:
+        batch, _ = self._pool.collect(timeout=600.0)
+        out = {k: self._xp.from_numpy(batch[k]) for k in _TRAJECTORY_FIELDS if k in batch}
+        stats = _batch_stats(batch, self._terms)
+        stats["policy_version"] = np.asarray(batch["policy_version"])
+        stats["transitions"] = int(batch["reward"].size)
+        return out, stats
+
+    def advance(self, counters: dict[str, int], stats: dict) -> bool:
+        lag = counters["version"] - stats["policy_version"]
+        stats["scalars"].update({"perf/policy_lag_mean": float(lag.mean()), "perf/policy_lag_max": float(lag.max())})
+        counters["env_steps"] += stats["transitions"]
+        counters["episodes"] += stats["episodes"]
+        return True  # every update publishes
+
+    def pool_scalars(self) -> dict[str, float]:
+        return {}
+
+
+class _ReplaySource:
+    """Off-policy: workers fill the replay ring on their own; the learner samples [U, B] batches,
+    holding the update-to-data ratio at ``utd`` gradient steps per env step, and publishes weights
+    every ``publish_every`` gradient steps."""
+
+    def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int):
+        self._pool, self._xp, self._cfg = pool, xp, cfg
+        self._rng = np.random.default_rng(seed + 7919 * counters["updates"])
+        self._steps0 = counters["env_steps"]  # env steps before this process (resume)
+        self._grad_steps = 0
+        self._since_publish = 0
+        self._pool_stats: dict[str, Any] = {}
+
+    def produce(self, stop: threading.Event) -> tuple[dict, dict] | None:
+        cfg, pool = self._cfg, self._pool
+        u, b = cfg.updates_per_call, cfg.batch_size
+        if pool.replay_size() < max(cfg.learning_starts, b):
+            pool.wait_replay(max(cfg.learning_starts, b))
+        # Hold the update-to-data ratio: wait for data rather than over-train on a small buffer.
+        while (self._grad_steps + u) > cfg.utd * max(pool.env_steps(), 1) and not stop.is_set():
+            if pool.serial:
+                pool.pump(1)
+            else:
+                time.sleep(0.002)
+        if stop.is_set():
+            return None
+        batch = pool.sample(u * b, self._rng)
+        self._grad_steps += u
+        out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in _REPLAY_FIELDS}
+        return out, {"scalars": {}, "episodes": 0}
+
+    def advance(self, counters: dict[str, int], stats: dict) -> bool:
+        counters["env_steps"] = self._steps0 + self._pool.env_steps()
+        self._since_publish += self._cfg.updates_per_call
+        if self._since_publish >= self._cfg.publish_every:
+            self._since_publish = 0
+            return True
+        return False
+
+    def pool_scalars(self) -> dict[str, float]:
+        st = self._pool.stats()
+        out = {"replay/size": float(st.get("replay_size", 0)), "perf/worker_env_steps_per_s": st["env_steps_per_s"]}
+        if st["recent_episode_returns"].size:
+            out["episode/return"] = st["episode_return_mean"]
+            out["episode/length"] = st["episode_length_mean"]
+        out.update({f"reward/{k}": v for k, v in st["reward_terms"].items()})
+        return out
 
 
 def _batch_stats(batch: dict[str, np.ndarray], reward_terms: tuple[str, ...]) -> dict[str, Any]:
