@@ -74,7 +74,7 @@ class Task(abc.ABC):
     def step(self, action: np.ndarray) -> StepOut:
         """Steps every environment one control step (auto-resetting those that end)."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027  (optional hook, not abstract)
         """Releases resources (nothing by default)."""
 
 

@@ -1,1 +1,4 @@
 """Imports every built-in task module so each registers itself."""
+
+import tasks.cartpole  # noqa: F401
+import tasks.go1_joystick  # noqa: F401

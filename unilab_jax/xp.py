@@ -154,7 +154,8 @@ class Backend:
         order = range(n - 1, -1, -1) if reverse else range(n)
         carry, ys = init, [None] * n
         for t in order:
-            carry, ys[t] = f(carry, tree_map(lambda a, t=t: a[t], xs))
+            # a[t, ...]: the array API does not define a[t] on arrays of rank > 1.
+            carry, ys[t] = f(carry, tree_map(lambda a, t=t: a[t, ...], xs))
         stacked = tree_map(lambda *ys_t: self.stack(list(ys_t)), *ys) if n else None
         return carry, stacked
 

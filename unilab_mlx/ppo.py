@@ -58,8 +58,6 @@ if TYPE_CHECKING:
 __all__ = ["TrainState", "Learner", "make_optimizer", "learning_rate", "state_from_numpy", "state_to_numpy"]
 
 XP = shim.get("mlx")
-# Per-transition fields the loss reads from the flattened batch ([N, ...]).
-_FLAT_FIELDS = ("obs", "critic_obs", "action", "log_prob", "mean", "log_std")
 # Fields of a trajectory batch the update reads ([T, B, ...]); others (e.g. policy_version) are ignored.
 BATCH_FIELDS = ("obs", "critic_obs", "next_critic_obs", "action", "reward", "terminated", "truncated",
                 "log_prob", "mean", "log_std")
@@ -124,15 +122,7 @@ class Learner:
     # -- compiled pieces ----------------------------------------------------------------------
     def _targets_fn(self, params: dict, obs_norm: Any, critic_norm: Any, batch: dict) -> tuple[dict, dict]:
         """Flattened [N, ...] minibatch source (with values/advantages/returns) and target metrics."""
-        if self.use_vtrace:
-            values, adv, ret = ppo.vtrace_targets(params, obs_norm, critic_norm, batch, self.config)
-        else:
-            values, adv, ret = ppo.advantages(params, critic_norm, batch, self.config)
-        t, b = batch["reward"].shape
-        n = t * b
-        flat = {k: batch[k].reshape(n, *batch[k].shape[2:]) for k in _FLAT_FIELDS}
-        flat.update(advantages=adv.reshape(n), returns=ret.reshape(n), values=values.reshape(n))
-        return flat, {"value_mean": mx.mean(values), "advantage_std": mx.std(adv)}
+        return ppo.minibatch_source(params, obs_norm, critic_norm, batch, self.config, self.use_vtrace)
 
     def _loss(self, params: dict, obs_norm: Any, critic_norm: Any, mb: dict) -> tuple[mx.array, dict]:
         return ppo.loss(params, obs_norm, critic_norm, mb, self.config, asymmetric_clip=self.use_vtrace)

@@ -89,8 +89,9 @@ def value(params: dict, critic_norm: Any, critic_obs: Any) -> Any:
 
 
 def vtrace_targets(params: dict, obs_norm: Any, critic_norm: Any, batch: dict,
-                   config: PPOConfig) -> tuple[Any, Any, Any]:
-    """APPO targets for a [T, B] batch: values, V-trace policy-gradient advantages and vs.
+                   config: PPOConfig) -> tuple[Any, Any, Any, Any, Any]:
+    """APPO targets for a [T, B] batch: values, V-trace policy-gradient advantages, vs, and the
+    current policy's mean and log_std.
 
     Importance ratios compare the current policy with the behaviour policy that collected the
     data (possibly several versions older).
@@ -104,7 +105,32 @@ def vtrace_targets(params: dict, obs_norm: Any, critic_norm: Any, batch: dict,
     done = xp.maximum(terminated, xp.astype(batch["truncated"], xp.float32))
     vs, pg_adv = vtrace.vtrace(values, next_values, batch["reward"], config.gamma * (1.0 - terminated),
                                target_log_prob - batch["log_prob"], done, lam=config.lam)
-    return xp.stop_gradient(values), xp.stop_gradient(pg_adv), xp.stop_gradient(vs)
+    sg = xp.stop_gradient
+    return sg(values), sg(pg_adv), sg(vs), sg(mean), sg(log_std)
+
+
+FLAT_FIELDS = ("obs", "critic_obs", "action", "log_prob", "mean", "log_std")
+
+
+def minibatch_source(params: dict, obs_norm: Any, critic_norm: Any, batch: dict, config: PPOConfig,
+                     use_vtrace: bool) -> tuple[dict, dict]:
+    """Targets for a [T, B] batch, flattened to [N = T*B, ...] for minibatching, plus metrics.
+
+    With V-trace (APPO) the KL reference (``mean``/``log_std``) is the policy at the start of this
+    update, not the stale behaviour policy: the KL-adaptive learning rate measures how far this
+    update moves the policy, whatever the lag of the data.
+    """
+    xp = shim.namespace(batch["reward"])
+    t, b = batch["reward"].shape
+    n = t * b
+    flat = {k: xp.reshape(batch[k], (n, *batch[k].shape[2:])) for k in FLAT_FIELDS}
+    if use_vtrace:
+        values, adv, ret, mean, log_std = vtrace_targets(params, obs_norm, critic_norm, batch, config)
+        flat.update(mean=xp.reshape(mean, flat["mean"].shape), log_std=xp.reshape(log_std, flat["log_std"].shape))
+    else:
+        values, adv, ret = advantages(params, critic_norm, batch, config)
+    flat.update(advantages=xp.reshape(adv, (n,)), returns=xp.reshape(ret, (n,)), values=xp.reshape(values, (n,)))
+    return flat, {"value_mean": xp.mean(values), "advantage_std": xp.std(adv)}
 
 
 def _actor(params: dict, obs_norm: Any, obs: Any) -> tuple[Any, Any]:

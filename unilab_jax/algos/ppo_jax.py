@@ -71,20 +71,12 @@ class Learner:
         return ppo.policy_weights(state.params, state.obs_norm)
 
     # -- the update ---------------------------------------------------------------------------
-    def _targets(self, state: TrainState, batch: dict) -> tuple[jax.Array, jax.Array, jax.Array]:
-        if self.use_vtrace:
-            return ppo.vtrace_targets(state.params, state.obs_norm, state.critic_norm, batch, self.config)
-        return ppo.advantages(state.params, state.critic_norm, batch, self.config)
-
     def _update(self, state: TrainState, batch: dict) -> tuple[TrainState, dict]:
         cfg = self.config
-        values, adv, ret = self._targets(state, batch)
-        t, b = batch["reward"].shape
-        n = t * b
+        flat, target_metrics = ppo.minibatch_source(state.params, state.obs_norm, state.critic_norm, batch, cfg,
+                                                    self.use_vtrace)
+        n = batch["reward"].size
         mb_size = n // cfg.num_minibatches
-        flat = {k: batch[k].reshape(n, *batch[k].shape[2:]) for k in ("obs", "critic_obs", "action", "log_prob",
-                                                                      "mean", "log_std")}
-        flat.update(advantages=adv.reshape(n), returns=ret.reshape(n), values=values.reshape(n))
 
         def loss_fn(params: dict, mb: dict) -> tuple[jax.Array, dict]:
             return ppo.loss(params, state.obs_norm, state.critic_norm, mb, cfg, asymmetric_clip=self.use_vtrace)
@@ -112,9 +104,7 @@ class Learner:
 
         keys = jax.random.split(state.key, cfg.num_epochs + 1)
         (params, opt_state), metrics = jax.lax.scan(epoch, (state.params, state.opt_state), keys[1:])
-        metrics = jax.tree_util.tree_map(jnp.mean, metrics)
-        metrics["value_mean"] = jnp.mean(values)
-        metrics["advantage_std"] = jnp.std(adv)
+        metrics = {**jax.tree_util.tree_map(jnp.mean, metrics), **target_metrics}
         obs_norm, critic_norm = state.obs_norm, state.critic_norm
         if cfg.normalize_obs:
             # Statistics move after the update, so the ratios above use the normalization the

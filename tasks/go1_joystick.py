@@ -1,0 +1,712 @@
+"""``go1_joystick_flat``: Unitree Go1 velocity tracking on flat ground, parity with MuJoCo Playground.
+
+Mirrors Playground's ``Go1JoystickFlatTerrain`` (``mujoco_playground/_src/locomotion/go1/joystick.py``
+with ``scene_mjx_feetonly_flat_terrain.xml`` and ``randomize.py``), rebuilt on the CPU:
+
+* Model: Menagerie's ``unitree_go1`` scene loaded through ``mujoco_menagerie`` and edited with
+  ``mujoco.MjSpec`` (never a copied XML): sim_dt 0.004 (5 substeps of ctrl_dt 0.02), Euler, 1
+  solver iteration / 5 line-search iterations, pyramidal cone; feet-only contacts (every geom but
+  the four foot spheres gets contype = conaffinity = 0; feet collide with the floor only; the floor
+  has priority so its friction/condim 3 apply); no joint damping; position actuators
+  ``target = default pose + 0.5 * action`` with Kp 35, Kd 0.5 and Menagerie's force limits; the IMU
+  site at Playground's position; Playground's flat-terrain ``home`` keyframe (0.278 m, hip
+  abduction +-0.1); sensors (gyro, velocimeter, accelerometer, framezaxis, framelinvel /
+  frameangvel, framequat, per-foot framepos / framelinvel / contact "found", per-actuator
+  actuatorfrc). Visual meshes and textures are stripped (no physical effect; keeps the per-env
+  model copies used for domain randomisation ~50 kB each instead of ~40 MB).
+* Observation (48, noisy): local linear velocity 3, gyro 3, gravity in the IMU frame 3, joint
+  angles - default 12, joint velocities 12, last action 12, command 3. Uniform noise
+  ``U(-1, 1) * level * scale`` (joint pos 0.03, joint vel 1.5, gyro 0.2, gravity 0.05, linvel 0.1).
+  As in Playground the observation is built before the step's bookkeeping, so its "last action"
+  is the action of the *previous* control step and its command the one before resampling.
+* Critic observation (123): the actor observation, then clean gyro 3, accelerometer 3, gravity 3,
+  local linvel 3, global angvel 3, joint angles - default 12, joint velocities 12, actuator forces
+  12, last foot contacts 4, foot velocities 12, feet air time 4, perturbation force 3 and
+  perturbation flag 1 (both always 0: Playground's perturbations are disabled by default).
+* Reward per step = clip(ctrl_dt * sum(scale * term), 0, inf) over the 16 Playground terms;
+  ``StepOut.reward_terms`` holds each ``ctrl_dt * scale * term`` (their sum is the pre-clip reward).
+* Commands ``U(-a, a)`` with ``a = (1.5, 0.8, 1.2)`` at reset; after an exponential time of mean
+  5 s each axis is, with probability 1/2, replaced by a new uniform value that is zeroed with
+  probability ``1 - b`` (``b = (0.9, 0.25, 0.5)``), Playground's ``sample_command``.
+* Reset: home pose, xy +-0.5 m, yaw +-3.14, base linear/angular velocity U(+-0.5).
+  Termination: torso up-vector z < 0. Time limit 1000 steps (truncation).
+* Domain randomisation (sampled once per env at construction, like brax's DR wrapper): floor
+  friction U(0.4, 1.0), joint frictionloss x U(0.9, 1.1), armature x U(1.0, 1.05), torso COM
+  + U(+-0.05) m, all body masses x U(0.9, 1.1), torso mass + U(+-1) kg, default pose + U(+-0.05).
+  The parameters live in numpy arrays (``self.dr``) and, flattened, in ``self.extrinsics``
+  ``[M, privileged_dim]`` float32 for teacher/student methods (``self.extrinsics_layout`` names
+  the columns: armature_scale 12, com_offset 3, default_pose_offset 12, floor_friction 1,
+  frictionloss_scale 12, mass_scale 13 (bodies 1..13), torso_mass_delta 1).
+  Deviation: Playground jitters ``model.qpos0``, which no Go1 dynamics reads (a no-op). Here the
+  offset is also added to the motor targets (a joint-calibration error; observations and rewards
+  keep the nominal default pose), so the parameter means something to a teacher/student method;
+  ``dr_pose_offset_on_targets=False`` restores the no-op.
+* Unstable envs (MuJoCo divergence warnings or a non-finite state/observation) are truncated
+  and reset; their outputs are zeroed rather than NaN and counted in ``self.unstable_count``.
+
+Other choices: ``integrator`` follows DESIGN.md (Euler; with no joint damping Euler is plain
+explicit Euler); Playground's newest XML says ``implicitfast``, available as an override. With
+``sensors_every_substep=False`` the physics wrapper may skip sensor evaluation on the first 4 of
+the 5 substeps where that measured faster (see ``tasks/physics.py``); Playground only reads the
+sensors after the last one, and the dynamics are unchanged (bit-identical, tested).
+
+The observation/reward math below is module-level pure functions on batched arrays written
+against the shim (``xp = shim.namespace(...)``), so an MJX variant can reuse it with jax arrays.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+
+import mujoco
+import numpy as np
+
+from tasks import base
+from tasks.physics import BatchedSim
+from unilab_jax import xp as shim
+
+FEET = ("FR", "FL", "RR", "RL")
+REWARD_TERMS = (
+    "tracking_lin_vel",
+    "tracking_ang_vel",
+    "lin_vel_z",
+    "ang_vel_xy",
+    "orientation",
+    "stand_still",
+    "termination",
+    "pose",
+    "torques",
+    "action_rate",
+    "energy",
+    "feet_slip",
+    "feet_clearance",
+    "feet_height",
+    "feet_air_time",
+    "dof_pos_limits",
+)
+OBS_DIM = 48
+CRITIC_OBS_DIM = OBS_DIM + 3 + 3 + 3 + 3 + 3 + 12 + 12 + 12 + 4 + 12 + 4 + 3 + 1  # 123
+# Playground's flat-terrain "home" keyframe (scene_mjx_feetonly_flat_terrain.xml).
+HOME_QPOS = (0.0, 0.0, 0.278, 1.0, 0.0, 0.0, 0.0) + (0.1, 0.9, -1.8, -0.1, 0.9, -1.8) * 2
+IMU_POS = (-0.01592, -0.06659, -0.00617)  # Playground's IMU site (Menagerie has it at the origin)
+POSE_WEIGHT = (1.0, 1.0, 0.1) * 4
+
+
+@dataclasses.dataclass(frozen=True)
+class Go1JoystickConfig:
+    """Configuration of ``go1_joystick_flat`` (Playground defaults; override any field by name)."""
+
+    episode_length: int = 1000
+    ctrl_dt: float = 0.02
+    sim_dt: float = 0.004
+    kp: float = 35.0
+    kd: float = 0.5
+    action_scale: float = 0.5
+    solver_iterations: int = 1
+    ls_iterations: int = 5
+    soft_joint_pos_limit_factor: float = 0.95
+    # Observation noise: U(-1, 1) * noise_level * scale.
+    noise_level: float = 1.0
+    noise_joint_pos: float = 0.03
+    noise_joint_vel: float = 1.5
+    noise_gyro: float = 0.2
+    noise_gravity: float = 0.05
+    noise_linvel: float = 0.1
+    # Reward.
+    tracking_sigma: float = 0.25
+    max_foot_height: float = 0.1
+    scale_tracking_lin_vel: float = 1.0
+    scale_tracking_ang_vel: float = 0.5
+    scale_lin_vel_z: float = -0.5
+    scale_ang_vel_xy: float = -0.05
+    scale_orientation: float = -5.0
+    scale_stand_still: float = -1.0
+    scale_termination: float = -1.0
+    scale_pose: float = 0.5
+    scale_torques: float = -0.0002
+    scale_action_rate: float = -0.01
+    scale_energy: float = -0.001
+    scale_feet_slip: float = -0.1
+    scale_feet_clearance: float = -2.0
+    scale_feet_height: float = -0.2
+    scale_feet_air_time: float = 0.1
+    scale_dof_pos_limits: float = -1.0
+    # Commands (vx, vy, yaw rate).
+    command_a: tuple[float, float, float] = (1.5, 0.8, 1.2)
+    command_b: tuple[float, float, float] = (0.9, 0.25, 0.5)
+    command_resample_mean_s: float = 5.0
+    # Reset.
+    reset_xy: float = 0.5
+    reset_yaw: float = 3.14
+    reset_base_vel: float = 0.5
+    # Domain randomisation (sampled once per env).
+    domain_randomization: bool = True
+    dr_floor_friction: tuple[float, float] = (0.4, 1.0)
+    dr_frictionloss_scale: tuple[float, float] = (0.9, 1.1)
+    dr_armature_scale: tuple[float, float] = (1.0, 1.05)
+    dr_com_offset: float = 0.05
+    dr_link_mass_scale: tuple[float, float] = (0.9, 1.1)
+    dr_torso_mass_delta: float = 1.0
+    dr_default_pose_offset: float = 0.05
+    physics_engine: str = "rollout"  # "rollout" or "step" (tasks/physics.py)
+    sensors_every_substep: bool = False  # False: skip sensors on inner substeps where faster
+    integrator: str = "euler"  # DESIGN.md: Euler; Playground's newest XML uses "implicitfast"
+    dr_pose_offset_on_targets: bool = True  # see the module docstring
+
+
+def default_config() -> Go1JoystickConfig:
+    return Go1JoystickConfig()
+
+
+def reward_scales(config: Go1JoystickConfig) -> dict[str, float]:
+    return {name: float(getattr(config, f"scale_{name}")) for name in REWARD_TERMS}
+
+
+# --------------------------------------------------------------------------------------------------
+# Model
+# --------------------------------------------------------------------------------------------------
+def load_go1_spec() -> mujoco.MjSpec:
+    """Menagerie's Go1 scene as an editable MjSpec (``MENAGERIE_ROOT`` for offline copies)."""
+    import mujoco_menagerie
+
+    root = os.environ.get("MENAGERIE_ROOT")
+    if root and not os.path.isdir(root):
+        raise FileNotFoundError(f"MENAGERIE_ROOT={root!r} is not a directory")
+    return mujoco_menagerie.get("unitree_go1").spec("scene")
+
+
+def build_spec(config: Go1JoystickConfig) -> mujoco.MjSpec:
+    """Playground's feet-only Go1 flat-terrain model, made from Menagerie's scene with MjSpec edits."""
+    spec = load_go1_spec()
+    opt = spec.option
+    opt.timestep = config.sim_dt
+    opt.iterations = config.solver_iterations
+    opt.ls_iterations = config.ls_iterations
+    integrators = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
+                   "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
+    if config.integrator not in integrators:
+        raise ValueError(f"integrator {config.integrator!r}: choose one of {sorted(integrators)}")
+    opt.integrator = integrators[config.integrator]
+    opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+    opt.impratio = 1.0
+    # Visual-only content: meshes, textures, materials (no effect on physics; bodies have inertials).
+    for g in list(spec.geoms):
+        if g.type == mujoco.mjtGeom.mjGEOM_MESH:
+            spec.delete(g)
+        else:
+            g.material = ""
+    for item in list(spec.meshes) + list(spec.textures) + list(spec.materials):
+        spec.delete(item)
+    # Feet-only contacts.
+    for g in spec.geoms:
+        g.margin = 0.0
+        if g.name == "floor":
+            g.contype, g.conaffinity, g.priority, g.condim = 1, 0, 1, 3
+            g.friction = [0.6, g.friction[1], g.friction[2]]
+        elif g.name in FEET:
+            g.contype, g.conaffinity, g.priority, g.condim = 0, 1, 0, 1
+            g.solimp = [0.015, 1.0, 0.023, g.solimp[3], g.solimp[4]]
+            g.friction = [0.8, 0.02, 0.01]
+        else:
+            g.contype, g.conaffinity = 0, 0
+    # No joint damping; PD through the position actuators.
+    for j in spec.joints:
+        if j.type != mujoco.mjtJoint.mjJNT_FREE:
+            j.damping = np.zeros_like(np.asarray(j.damping))
+    for a in spec.actuators:
+        a.gainprm[0] = config.kp
+        a.biasprm[1] = -config.kp
+        a.biasprm[2] = -config.kd
+    spec.site("imu").pos = list(IMU_POS)
+    key = spec.key("home")
+    key.qpos = list(HOME_QPOS)
+    key.ctrl = list(HOME_QPOS[7:])
+    # Sensors (Playground's names).
+    S, Ob = mujoco.mjtSensor, mujoco.mjtObj
+
+    def add(name, type_, objtype=Ob.mjOBJ_SITE, objname="imu", **kw):
+        spec.add_sensor(name=name, type=type_, objtype=objtype, objname=objname, **kw)
+
+    add("gyro", S.mjSENS_GYRO)
+    add("local_linvel", S.mjSENS_VELOCIMETER)
+    add("accelerometer", S.mjSENS_ACCELEROMETER)
+    add("upvector", S.mjSENS_FRAMEZAXIS)
+    add("global_linvel", S.mjSENS_FRAMELINVEL)
+    add("global_angvel", S.mjSENS_FRAMEANGVEL)
+    add("orientation", S.mjSENS_FRAMEQUAT)
+    for f in FEET:
+        add(f"{f}_global_linvel", S.mjSENS_FRAMELINVEL, objname=f)
+        add(f"{f}_pos", S.mjSENS_FRAMEPOS, objname=f)
+    for f in FEET:
+        # data="found", reduce="mindist", num=1: 1 if the foot touches the floor.
+        add(f"{f}_floor_found", S.mjSENS_CONTACT, objtype=Ob.mjOBJ_GEOM, objname=f,
+            reftype=Ob.mjOBJ_GEOM, refname="floor", intprm=[1, 1, 1])
+    for a in spec.actuators:
+        add(f"{a.name}_force", S.mjSENS_ACTUATORFRC, objtype=Ob.mjOBJ_ACTUATOR, objname=a.name)
+    return spec
+
+
+# --------------------------------------------------------------------------------------------------
+# Task math on the shim. Shapes: [M, ...] batched over envs; feet axis of size 4 in FEET order.
+# --------------------------------------------------------------------------------------------------
+def gravity_from_quat(quat):
+    """Gravity direction in the body frame, R(quat)^T @ (0, 0, -1); quat [M, 4] (w, x, y, z)."""
+    xp = shim.namespace(quat)
+    w, x, y, z = quat[:, 0], quat[:, 1], quat[:, 2], quat[:, 3]
+    return -xp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+
+
+def quat_mul(a, b):
+    """Hamilton product of [M, 4] quaternions (w, x, y, z)."""
+    xp = shim.namespace(a, b)
+    aw, ax, ay, az = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    bw, bx, by, bz = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+    return xp.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def noise_scales(config: Go1JoystickConfig):
+    """[33] per-entry noise amplitudes of the noisy actor inputs (linvel, gyro, gravity, qpos, qvel)."""
+    c = config
+    return np.concatenate(
+        [
+            np.full(3, c.noise_linvel),
+            np.full(3, c.noise_gyro),
+            np.full(3, c.noise_gravity),
+            np.full(12, c.noise_joint_pos),
+            np.full(12, c.noise_joint_vel),
+        ]
+    ) * c.noise_level
+
+
+def actor_obs(local_linvel, gyro, gravity, joint_pos, joint_vel, last_act, command, default_pose, noise):
+    """The 48-dim actor observation. ``noise [M, 33]`` = U(-1, 1) draws times ``noise_scales``."""
+    xp = shim.namespace(local_linvel, gyro, gravity, joint_pos, joint_vel, last_act, command, noise)
+    clean = xp.concat([local_linvel, gyro, gravity, joint_pos, joint_vel], axis=-1)
+    noisy = clean + noise
+    return xp.concat(
+        [noisy[:, :9], noisy[:, 9:21] - default_pose, noisy[:, 21:33], last_act, command], axis=-1
+    )
+
+
+def critic_obs(actor, gyro, accelerometer, gravity, local_linvel, global_angvel, joint_pos, joint_vel,
+               default_pose, actuator_force, last_contact, feet_vel, feet_air_time):
+    """The 123-dim privileged observation (Playground's ``privileged_state``); feet_vel [M, 4, 3]."""
+    xp = shim.namespace(actor, gyro, accelerometer, joint_pos, feet_vel)
+    M = actor.shape[0]
+    pert = xp.zeros((M, 4), dtype=actor.dtype)  # perturbation force (3) + active flag (1): disabled
+    return xp.concat(
+        [
+            actor, gyro, accelerometer, gravity, local_linvel, global_angvel, joint_pos - default_pose,
+            joint_vel, actuator_force, xp.astype(last_contact, actor.dtype),
+            xp.reshape(feet_vel, (M, 12)), feet_air_time, pert,
+        ],
+        axis=-1,
+    )
+
+
+def feet_contact_update(contact, last_contact, air_time, swing_peak, feet_z, dt: float):
+    """Playground's per-step foot bookkeeping, before the post-reward zeroing.
+
+    Returns (first_contact [M, 4] bool, air_time + dt, max(swing_peak, feet_z)).
+    """
+    xp = shim.namespace(air_time, swing_peak, feet_z)
+    contact_filt = contact | last_contact
+    first_contact = (air_time > 0.0) & contact_filt
+    return first_contact, air_time + dt, xp.maximum(swing_peak, feet_z)
+
+
+def _norm(x, axis=-1):
+    xp = shim.namespace(x)
+    return xp.sqrt(xp.sum(xp.square(x), axis=axis))
+
+
+def _f(mask, like):
+    """bool -> float array of ``like``'s dtype."""
+    return shim.namespace(like).astype(mask, like.dtype)
+
+
+def reward_tracking_lin_vel(command, local_linvel, sigma: float):
+    xp = shim.namespace(command, local_linvel)
+    return xp.exp(-xp.sum(xp.square(command[:, :2] - local_linvel[:, :2]), axis=-1) / sigma)
+
+
+def reward_tracking_ang_vel(command, gyro, sigma: float):
+    xp = shim.namespace(command, gyro)
+    return xp.exp(-xp.square(command[:, 2] - gyro[:, 2]) / sigma)
+
+
+def cost_lin_vel_z(global_linvel):
+    return shim.namespace(global_linvel).square(global_linvel[:, 2])
+
+
+def cost_ang_vel_xy(global_angvel):
+    xp = shim.namespace(global_angvel)
+    return xp.sum(xp.square(global_angvel[:, :2]), axis=-1)
+
+
+def cost_orientation(upvector):
+    xp = shim.namespace(upvector)
+    return xp.sum(xp.square(upvector[:, :2]), axis=-1)
+
+
+def cost_stand_still(command, joint_pos, default_pose):
+    xp = shim.namespace(command, joint_pos)
+    still = _f(_norm(command) < 0.01, joint_pos)
+    return xp.sum(xp.abs(joint_pos - default_pose), axis=-1) * still
+
+
+def reward_pose(joint_pos, default_pose, weight):
+    xp = shim.namespace(joint_pos)
+    return xp.exp(-xp.sum(xp.square(joint_pos - default_pose) * weight, axis=-1))
+
+
+def cost_torques(actuator_force):
+    xp = shim.namespace(actuator_force)
+    return _norm(actuator_force) + xp.sum(xp.abs(actuator_force), axis=-1)
+
+
+def cost_action_rate(action, last_act):
+    xp = shim.namespace(action, last_act)
+    return xp.sum(xp.square(action - last_act), axis=-1)
+
+
+def cost_energy(joint_vel, actuator_force):
+    xp = shim.namespace(joint_vel, actuator_force)
+    return xp.sum(xp.abs(joint_vel) * xp.abs(actuator_force), axis=-1)
+
+
+def cost_feet_slip(command, feet_vel, contact):
+    """feet_vel [M, 4, 3] (world), contact [M, 4] bool."""
+    xp = shim.namespace(command, feet_vel)
+    moving = _f(_norm(command) > 0.01, feet_vel)
+    v2 = xp.sum(xp.square(feet_vel[..., :2]), axis=-1)
+    return xp.sum(v2 * _f(contact, v2), axis=-1) * moving
+
+
+def cost_feet_clearance(feet_vel, feet_z, max_foot_height: float):
+    xp = shim.namespace(feet_vel, feet_z)
+    vel_norm = xp.sqrt(_norm(feet_vel[..., :2]))
+    return xp.sum(xp.abs(feet_z - max_foot_height) * vel_norm, axis=-1)
+
+
+def cost_feet_height(command, swing_peak, first_contact, max_foot_height: float):
+    xp = shim.namespace(command, swing_peak)
+    moving = _f(_norm(command) > 0.01, swing_peak)
+    err = swing_peak / max_foot_height - 1.0
+    return xp.sum(xp.square(err) * _f(first_contact, err), axis=-1) * moving
+
+
+def reward_feet_air_time(command, air_time, first_contact):
+    xp = shim.namespace(command, air_time)
+    moving = _f(_norm(command) > 0.01, air_time)
+    return xp.sum((air_time - 0.1) * _f(first_contact, air_time), axis=-1) * moving
+
+
+def cost_dof_pos_limits(joint_pos, soft_lower, soft_upper):
+    xp = shim.namespace(joint_pos)
+    zero = xp.zeros_like(joint_pos)
+    out = -xp.minimum(joint_pos - soft_lower, zero) + xp.maximum(joint_pos - soft_upper, zero)
+    return xp.sum(out, axis=-1)
+
+
+def terminated(upvector):
+    """[M] bool: the torso's up-vector points down."""
+    return upvector[:, 2] < 0.0
+
+
+def reward_terms(*, command, local_linvel, gyro, global_linvel, global_angvel, upvector, joint_pos,
+                 joint_vel, default_pose, pose_weight, actuator_force, action, last_act, done, feet_vel,
+                 feet_z, contact, first_contact, air_time, swing_peak, soft_lower, soft_upper,
+                 tracking_sigma: float, max_foot_height: float):
+    """Unscaled reward terms, each [M] (Playground's ``_get_reward``)."""
+    return {
+        "tracking_lin_vel": reward_tracking_lin_vel(command, local_linvel, tracking_sigma),
+        "tracking_ang_vel": reward_tracking_ang_vel(command, gyro, tracking_sigma),
+        "lin_vel_z": cost_lin_vel_z(global_linvel),
+        "ang_vel_xy": cost_ang_vel_xy(global_angvel),
+        "orientation": cost_orientation(upvector),
+        "stand_still": cost_stand_still(command, joint_pos, default_pose),
+        "termination": _f(done, joint_pos[:, 0]),
+        "pose": reward_pose(joint_pos, default_pose, pose_weight),
+        "torques": cost_torques(actuator_force),
+        "action_rate": cost_action_rate(action, last_act),
+        "energy": cost_energy(joint_vel, actuator_force),
+        "feet_slip": cost_feet_slip(command, feet_vel, contact),
+        "feet_clearance": cost_feet_clearance(feet_vel, feet_z, max_foot_height),
+        "feet_height": cost_feet_height(command, swing_peak, first_contact, max_foot_height),
+        "feet_air_time": reward_feet_air_time(command, air_time, first_contact),
+        "dof_pos_limits": cost_dof_pos_limits(joint_pos, soft_lower, soft_upper),
+    }
+
+
+def scale_terms(terms, scales, dt: float):
+    """{name: dt * scale * term} for every term."""
+    return {k: terms[k] * (scales[k] * dt) for k in terms}
+
+
+def total_reward(scaled_terms):
+    """clip(sum of the scaled terms, 0, inf) [M]."""
+    xp = shim.namespace(*scaled_terms.values())
+    total = xp.sum(xp.stack(list(scaled_terms.values()), axis=0), axis=0)
+    return xp.maximum(total, xp.zeros_like(total))
+
+
+def sample_command(old, uniform, keep_nonzero, replace):
+    """Playground's resampling: per axis, with ``replace`` swap in ``uniform * keep_nonzero``.
+
+    old, uniform [M, 3] floats; keep_nonzero, replace [M, 3] bool.
+    """
+    xp = shim.namespace(old, uniform)
+    new = uniform * xp.astype(keep_nonzero, uniform.dtype)
+    return xp.where(replace, new, old)
+
+
+# --------------------------------------------------------------------------------------------------
+# The numpy task
+# --------------------------------------------------------------------------------------------------
+class Go1JoystickFlat(base.Task):
+    def __init__(self, config: Go1JoystickConfig, num_envs: int, seed: int):
+        super().__init__(config, num_envs, seed)
+        c = config
+        nsub = round(c.ctrl_dt / c.sim_dt)
+        if nsub < 1 or abs(nsub * c.sim_dt - c.ctrl_dt) > 1e-9:
+            raise ValueError(f"ctrl_dt {c.ctrl_dt} must be a multiple of sim_dt {c.sim_dt}")
+        self.dt = c.ctrl_dt
+        self.model = build_spec(c).compile()
+        m = self.model
+        M = self.num_envs
+        self._rng = np.random.Generator(np.random.Philox(self.seed))
+        home = m.key("home")
+        self.init_qpos = np.array(home.qpos)
+        self.default_pose = self.init_qpos[7:].copy()
+        self.pose_weight = np.array(POSE_WEIGHT)
+        lowers, uppers = m.jnt_range[1:].T
+        self.soft_lower = lowers * c.soft_joint_pos_limit_factor
+        self.soft_upper = uppers * c.soft_joint_pos_limit_factor
+        self.floor_id = m.geom("floor").id
+        self.torso_id = m.body("trunk").id
+        self._sensor = {m.sensor(i).name: (m.sensor_adr[i], m.sensor_dim[i]) for i in range(m.nsensor)}
+        self._noise_scale = noise_scales(c)
+        self.scales = reward_scales(c)
+        self._cmd_a = np.array(c.command_a)
+        self._cmd_b = np.array(c.command_b)
+        # Domain randomisation: per-env numpy parameters and per-env model copies.
+        self.dr = self._sample_dr()
+        self.extrinsics = self._extrinsics()
+        models = self._apply_dr() if c.domain_randomization else None
+        self.sim = BatchedSim(m, M, nsub, engine=c.physics_engine, models=models,
+                              sensors_every_substep=c.sensors_every_substep)
+        self.spec = base.TaskSpec(
+            name="go1_joystick_flat", obs_dim=OBS_DIM, critic_obs_dim=CRITIC_OBS_DIM, action_dim=m.nu,
+            episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=REWARD_TERMS,
+            privileged_dim=self.extrinsics.shape[1],
+        )
+        # Per-env episode state (Playground's ``info``).
+        self.command = np.zeros((M, 3))
+        self.steps_until_next_cmd = np.zeros(M, dtype=np.int64)
+        self.last_act = np.zeros((M, m.nu))
+        self.last_last_act = np.zeros((M, m.nu))
+        self.feet_air_time = np.zeros((M, 4))
+        self.last_contact = np.zeros((M, 4), dtype=bool)
+        self.swing_peak = np.zeros((M, 4))
+        self.steps = np.zeros(M, dtype=np.int64)
+        self.unstable_count = 0
+
+    # ---- domain randomisation -----------------------------------------------------------------
+    def _sample_dr(self) -> dict[str, np.ndarray]:
+        c, M, r = self.config, self.num_envs, self._rng
+        nb = self.model.nbody - 1  # world has no mass
+        if not c.domain_randomization:
+            return {
+                "floor_friction": np.full((M, 1), 0.6), "frictionloss_scale": np.ones((M, 12)),
+                "armature_scale": np.ones((M, 12)), "com_offset": np.zeros((M, 3)),
+                "mass_scale": np.ones((M, nb)), "torso_mass_delta": np.zeros((M, 1)),
+                "default_pose_offset": np.zeros((M, 12)),
+            }
+        return {
+            "floor_friction": r.uniform(*c.dr_floor_friction, size=(M, 1)),
+            "frictionloss_scale": r.uniform(*c.dr_frictionloss_scale, size=(M, 12)),
+            "armature_scale": r.uniform(*c.dr_armature_scale, size=(M, 12)),
+            "com_offset": r.uniform(-c.dr_com_offset, c.dr_com_offset, size=(M, 3)),
+            "mass_scale": r.uniform(*c.dr_link_mass_scale, size=(M, nb)),
+            "torso_mass_delta": r.uniform(-c.dr_torso_mass_delta, c.dr_torso_mass_delta, size=(M, 1)),
+            "default_pose_offset": r.uniform(
+                -c.dr_default_pose_offset, c.dr_default_pose_offset, size=(M, 12)
+            ),
+        }
+
+    def _extrinsics(self) -> np.ndarray:
+        """[M, privileged_dim] float32: the DR parameters, in ``self.extrinsics_layout`` order."""
+        self.extrinsics_layout = tuple((k, self.dr[k].shape[1]) for k in sorted(self.dr))
+        return np.concatenate([self.dr[k] for k in sorted(self.dr)], axis=1).astype(np.float32)
+
+    def _apply_dr(self) -> list[mujoco.MjModel]:
+        base_m, dr = self.model, self.dr
+        models = []
+        for i in range(self.num_envs):
+            mi = copy.copy(base_m)
+            mi.geom_friction[self.floor_id, 0] = dr["floor_friction"][i, 0]
+            mi.dof_frictionloss[6:] = base_m.dof_frictionloss[6:] * dr["frictionloss_scale"][i]
+            mi.dof_armature[6:] = base_m.dof_armature[6:] * dr["armature_scale"][i]
+            mi.body_ipos[self.torso_id] = base_m.body_ipos[self.torso_id] + dr["com_offset"][i]
+            mi.body_mass[1:] = base_m.body_mass[1:] * dr["mass_scale"][i]
+            mi.body_mass[self.torso_id] += dr["torso_mass_delta"][i, 0]
+            mi.qpos0[7:] = base_m.qpos0[7:] + dr["default_pose_offset"][i]
+            models.append(mi)
+        return models
+
+    # ---- helpers --------------------------------------------------------------------------------
+    def _s(self, name: str) -> np.ndarray:
+        adr, dim = self._sensor[name]
+        return self.sim.sensordata[:, adr : adr + dim]
+
+    def _sensors(self) -> dict[str, np.ndarray]:
+        sd = self.sim.sensordata
+        out = {k: self._s(k) for k in ("gyro", "local_linvel", "accelerometer", "upvector", "global_linvel",
+                                       "global_angvel", "orientation")}
+        out["feet_vel"] = np.stack([self._s(f"{f}_global_linvel") for f in FEET], axis=1)
+        out["feet_z"] = np.stack([self._s(f"{f}_pos")[:, 2] for f in FEET], axis=1)
+        out["contact"] = np.stack([self._s(f"{f}_floor_found")[:, 0] for f in FEET], axis=1) > 0
+        adr0 = self._sensor[f"{self.model.actuator(0).name}_force"][0]
+        out["actuator_force"] = sd[:, adr0 : adr0 + self.model.nu]
+        out["gravity"] = gravity_from_quat(out["orientation"])
+        return out
+
+    def _pose_offset(self, idx=slice(None)) -> np.ndarray:
+        if not self.config.dr_pose_offset_on_targets:
+            return np.zeros_like(self.dr["default_pose_offset"][idx])
+        return self.dr["default_pose_offset"][idx]
+
+    def _targets(self, action: np.ndarray) -> np.ndarray:
+        return self.default_pose + self._pose_offset() + action * self.config.action_scale
+
+    def _observe(self, s: dict[str, np.ndarray], last_act, command, last_contact, air_time):
+        M = self.num_envs
+        noise = self._rng.uniform(-1.0, 1.0, size=(M, self._noise_scale.size)) * self._noise_scale
+        qj, vj = self.sim.qpos[:, 7:], self.sim.qvel[:, 6:]
+        obs = actor_obs(s["local_linvel"], s["gyro"], s["gravity"], qj, vj, last_act, command,
+                        self.default_pose, noise)
+        cobs = critic_obs(obs, s["gyro"], s["accelerometer"], s["gravity"], s["local_linvel"],
+                          s["global_angvel"], qj, vj, self.default_pose, s["actuator_force"], last_contact,
+                          s["feet_vel"], air_time)
+        return obs, cobs
+
+    def _exp_steps(self, n: int) -> np.ndarray:
+        t = self._rng.exponential(1.0, size=n) * self.config.command_resample_mean_s
+        return np.round(t / self.dt).astype(np.int64)
+
+    def _reset_envs(self, idx: np.ndarray) -> None:
+        c, r, n = self.config, self._rng, idx.size
+        qpos = np.tile(self.init_qpos, (n, 1))
+        qpos[:, 0:2] += r.uniform(-c.reset_xy, c.reset_xy, size=(n, 2))
+        yaw = r.uniform(-c.reset_yaw, c.reset_yaw, size=n)
+        qyaw = np.stack([np.cos(yaw / 2), np.zeros(n), np.zeros(n), np.sin(yaw / 2)], axis=-1)
+        qpos[:, 3:7] = quat_mul(qpos[:, 3:7], qyaw)
+        qvel = np.zeros((n, self.model.nv))
+        qvel[:, 0:6] = r.uniform(-c.reset_base_vel, c.reset_base_vel, size=(n, 6))
+        ctrl = self.default_pose + self._pose_offset(idx)
+        self.sim.set_state(idx, qpos, qvel, ctrl=ctrl)
+        self.steps_until_next_cmd[idx] = self._exp_steps(n)
+        self.command[idx] = r.uniform(-self._cmd_a, self._cmd_a, size=(n, 3))
+        self.last_act[idx] = 0.0
+        self.last_last_act[idx] = 0.0
+        self.feet_air_time[idx] = 0.0
+        self.last_contact[idx] = False
+        self.swing_peak[idx] = 0.0
+        self.steps[idx] = 0
+
+    # ---- API ------------------------------------------------------------------------------------
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        self._reset_envs(np.arange(self.num_envs))
+        obs, cobs = self._observe(self._sensors(), self.last_act, self.command, self.last_contact,
+                                  self.feet_air_time)
+        return obs.astype(np.float32), cobs.astype(np.float32)
+
+    def step(self, action: np.ndarray) -> base.StepOut:
+        c, M = self.config, self.num_envs
+        a = np.clip(np.asarray(action, dtype=np.float64).reshape(M, self.model.nu), -1.0, 1.0)
+        a = np.nan_to_num(a, nan=0.0)
+        unstable = self.sim.step(self._targets(a))
+        s = self._sensors()
+        qj, vj = self.sim.qpos[:, 7:], self.sim.qvel[:, 6:]
+        contact = s["contact"]
+        first_contact, air_time, swing_peak = feet_contact_update(
+            contact, self.last_contact, self.feet_air_time, self.swing_peak, s["feet_z"], self.dt
+        )
+        next_obs, next_cobs = self._observe(s, self.last_act, self.command, self.last_contact, air_time)
+        done = terminated(s["upvector"])
+        terms = reward_terms(
+            command=self.command, local_linvel=s["local_linvel"], gyro=s["gyro"],
+            global_linvel=s["global_linvel"], global_angvel=s["global_angvel"], upvector=s["upvector"],
+            joint_pos=qj, joint_vel=vj, default_pose=self.default_pose, pose_weight=self.pose_weight,
+            actuator_force=s["actuator_force"], action=a, last_act=self.last_act, done=done,
+            feet_vel=s["feet_vel"], feet_z=s["feet_z"], contact=contact, first_contact=first_contact,
+            air_time=air_time, swing_peak=swing_peak, soft_lower=self.soft_lower,
+            soft_upper=self.soft_upper, tracking_sigma=c.tracking_sigma, max_foot_height=c.max_foot_height,
+        )
+        scaled = scale_terms(terms, self.scales, self.dt)
+        reward = total_reward(scaled)
+        # Bookkeeping after the reward (Playground's order).
+        self.last_last_act = self.last_act
+        self.last_act = a
+        self.steps_until_next_cmd -= 1
+        due = self.steps_until_next_cmd <= 0
+        if due.any():
+            r = self._rng
+            new = sample_command(
+                self.command, r.uniform(-self._cmd_a, self._cmd_a, size=(M, 3)),
+                r.random((M, 3)) < self._cmd_b, r.random((M, 3)) < 0.5,
+            )
+            self.command = np.where(due[:, None], new, self.command)
+            self.steps_until_next_cmd = np.where(due, self._exp_steps(M), self.steps_until_next_cmd)
+        self.feet_air_time = air_time * ~contact
+        self.last_contact = contact
+        self.swing_peak = swing_peak * ~contact
+        self.steps += 1
+        # Instability: warnings, or anything non-finite -> truncate, zero the outputs, reset.
+        unstable = unstable | ~(
+            np.isfinite(next_obs).all(axis=1) & np.isfinite(next_cobs).all(axis=1) & np.isfinite(reward)
+        )
+        if unstable.any():
+            self.unstable_count += int(unstable.sum())
+            next_obs[unstable] = 0.0
+            next_cobs[unstable] = 0.0
+            reward = np.where(unstable, 0.0, reward)
+            scaled = {k: np.where(unstable, 0.0, v) for k, v in scaled.items()}
+        term = done & ~unstable
+        trunc = ((self.steps >= c.episode_length) | unstable) & ~term
+        next_obs = next_obs.astype(np.float32)
+        next_cobs = next_cobs.astype(np.float32)
+        obs, cobs = next_obs, next_cobs
+        ended = np.flatnonzero(term | trunc)
+        if ended.size:
+            self._reset_envs(ended)
+            o2, c2 = self._observe(self._sensors(), self.last_act, self.command, self.last_contact,
+                                   self.feet_air_time)
+            obs, cobs = next_obs.copy(), next_cobs.copy()
+            obs[ended] = o2[ended]
+            cobs[ended] = c2[ended]
+        return base.StepOut(
+            obs, cobs, next_obs, next_cobs, reward.astype(np.float32), term, trunc,
+            {k: v.astype(np.float32) for k, v in scaled.items()},
+        )
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+def make(config: Go1JoystickConfig, num_envs: int, seed: int) -> Go1JoystickFlat:
+    return Go1JoystickFlat(config, num_envs, seed)
+
+
+base.register("go1_joystick_flat", make, default_config)
