@@ -93,7 +93,8 @@ class Learner:
                 opt_state = _with_learning_rate(opt_state, lr)
             updates, opt_state = self.tx.update(grads, opt_state, params)
             params = optax.apply_updates(params, updates)
-            metrics = {**metrics, "learning_rate": lr, "grad_norm": optax.global_norm(grads)}
+            grad_norm = jnp.sqrt(sum(jnp.sum(jnp.square(g)) for g in jax.tree_util.tree_leaves(grads)))
+            metrics = {**metrics, "learning_rate": lr, "grad_norm": grad_norm}
             return (params, opt_state), metrics
 
         def epoch(carry: tuple, key: jax.Array) -> tuple[tuple, dict]:

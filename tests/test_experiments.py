@@ -1,0 +1,56 @@
+"""Experiment scripts as a user runs them: subprocesses with tiny budgets."""
+
+import glob
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _run(script, *args, timeout=600):
+    return subprocess.run([sys.executable, os.path.join(ROOT, "experiments", script), *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_ppo_go1_runs_and_resumes(tmp_path):
+    logdir = str(tmp_path / "go1")
+    first = _run("ppo_go1.py", "--total_steps=20000", "--num_workers=2", "--eval_envs=2", f"--logdir={logdir}")
+    assert first.returncode == 0, first.stderr[-3000:]
+    assert glob.glob(os.path.join(logdir, "events.out.tfevents.*"))
+    steps = sorted(int(d) for d in os.listdir(os.path.join(logdir, "checkpoints")) if d.isdigit())
+    assert steps and steps[-1] >= 20000
+    second = _run("ppo_go1.py", "--total_steps=40000", "--num_workers=2", "--eval_envs=2", "--resume",
+                  f"--logdir={logdir}")
+    assert second.returncode == 0, second.stderr[-3000:]
+    summary = json.load(open(os.path.join(logdir, "summary.json")))
+    assert summary["env_steps"] >= 40000
+    rows = [json.loads(line) for line in open(os.path.join(logdir, "metrics.jsonl"))]
+    resumed = [r["step"] for r in rows[len(rows) // 2:] if "loss/policy_loss" in r]
+    # The second run continues from the saved step: its first training row follows it directly.
+    train_steps = [r["step"] for r in rows if "loss/policy_loss" in r]
+    assert train_steps == sorted(train_steps) and len(set(train_steps)) == len(train_steps)
+    assert resumed and min(s for s in train_steps if s > steps[-1]) == steps[-1] + 24 * 2 * 32
+
+
+@pytest.mark.parametrize("flag,message", [
+    ("--num_workers=0", "--num_workers must be at least 1"),
+    ("--platform=tpu", "--platform='tpu'"),
+    ("--config=learning_rat=1", "unknown config key"),
+    ("--task_config=no_such_key=1", "unknown config key"),
+    ("--task=mars_rover", "registered tasks"),
+    ("--total_steps=-5", "--total_steps must be positive"),
+])
+def test_invalid_flags_fail_before_workers_start(tmp_path, flag, message):
+    out = _run("ppo_cartpole.py", flag, f"--logdir={tmp_path / 'x'}", timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert message in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_resume_without_checkpoint_is_an_error(tmp_path):
+    out = _run("ppo_cartpole.py", "--resume", f"--logdir={tmp_path / 'empty'}", timeout=120)
+    assert out.returncode == 2 and "no checkpoints" in out.stderr
