@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -21,6 +22,7 @@ from absl import app, flags
 from absl import logging as absl_logging
 
 PLATFORMS = ("jax", "mlx")
+PROCESS_START = time.time()  # time-to-target clocks count from here (imports of jax etc. included)
 
 FLAGS = flags.FLAGS
 flags.DEFINE_string("platform", "jax", f"learner platform, one of {PLATFORMS}")
@@ -100,8 +102,8 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
     """Parses the shared flags, validates them, trains, prints the summary."""
 
     def main(argv: list[str]) -> None:
-        if FLAGS["verbosity"].using_default_value:
-            absl_logging.set_verbosity(absl_logging.WARNING)  # orbax logs every save at INFO
+        if not any(a.startswith(("-v", "--v")) for a in sys.argv[1:]):
+            absl_logging.set_verbosity(absl_logging.WARNING)  # orbax logs every save at INFO; -v 0 shows it
         if len(argv) > 1:
             raise app.UsageError(f"unexpected arguments: {argv[1:]}")
         from unilab_jax.config import ConfigError
@@ -114,7 +116,7 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
             sys.exit(2)
         from unilab_jax.trainer import Trainer
 
-        summary = Trainer(run, module, config, task_overrides).train()
+        summary = Trainer(run, module, config, task_overrides, start_time=PROCESS_START).train()
         print(json.dumps(summary, indent=2))
         print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
         print(f"checkpoints: {summary['checkpoints']}")

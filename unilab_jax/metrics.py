@@ -6,8 +6,8 @@ import json
 import math
 import os
 import sys
+import threading
 import time
-from typing import Any
 
 
 class MetricLogger:
@@ -20,13 +20,15 @@ class MetricLogger:
         self.logdir = logdir
         self._tb = SummaryWriter(logdir=logdir, flush_secs=10)
         self._jsonl = open(os.path.join(logdir, "metrics.jsonl"), "a")  # noqa: SIM115 (closed in close())
+        self._lock = threading.Lock()  # the learner and the evaluation thread both log
 
     def log(self, step: int, scalars: dict[str, float]) -> None:
         clean = {k: float(v) for k, v in scalars.items() if v is not None and math.isfinite(float(v))}
-        for k, v in clean.items():
-            self._tb.add_scalar(k, v, global_step=step)
-        self._jsonl.write(json.dumps({"step": int(step), **clean}) + "\n")
-        self._jsonl.flush()
+        with self._lock:
+            for k, v in clean.items():
+                self._tb.add_scalar(k, v, global_step=step)
+            self._jsonl.write(json.dumps({"step": int(step), **clean}) + "\n")
+            self._jsonl.flush()
 
     def close(self) -> None:
         self._tb.flush()

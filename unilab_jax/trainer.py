@@ -50,8 +50,13 @@ def _learner_platform(platform: str) -> Any:
 
 
 class Trainer:
-    def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any]):
+    def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
+                 start_time: float | None = None):
+        """``start_time``: wall clock that ``time/wall_s`` and ``eval/wall_s`` count from (the process
+        start when launched from the CLI, so compilation and worker start-up are included)."""
         import tasks
+
+        self.t0 = time.time() if start_time is None else start_time
 
         self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, task_overrides
         probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
@@ -116,7 +121,8 @@ class Trainer:
         from unilab_jax.checkpoint import Checkpointer
         from unilab_jax.runtime.pool import WorkerPool
 
-        run, cfg, t_start = self.run, self.config, time.time()
+        run, cfg, t_start = self.run, self.config, self.t0
+        evaluator = _AsyncEvaluator(self)
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
         replay = self.algo.BUFFER == "replay"
@@ -161,7 +167,7 @@ class Trainer:
                 self.logger.log(counters["env_steps"], scalars)
                 progress.update(counters["env_steps"], scalars.get("episode/return"))
                 if next_eval is not None and counters["env_steps"] >= next_eval:
-                    last_eval = self._eval_and_log(state, counters, t_start)
+                    evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
                     next_eval += run.eval_every
                     ckpt.save(counters["env_steps"], state, self._meta(counters))
                 if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
@@ -182,7 +188,8 @@ class Trainer:
                 signal.signal(signal.SIGTERM, prev_handler)
         interrupted = interrupted or self._stop.is_set()
         if not interrupted:
-            last_eval = self._eval_and_log(state, counters, t_start)
+            evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
+        last_eval = evaluator.close()
         self.logger.close()
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
                    "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
@@ -191,14 +198,36 @@ class Trainer:
             json.dump(summary, f, indent=2)
         return summary
 
-    def _eval_and_log(self, state: Any, counters: dict[str, int], t_start: float) -> dict[str, float]:
-        result = self.evaluate(nets.to_numpy(self.learner.weights(state)), seed=counters["updates"])
-        result["eval/wall_s"] = time.time() - t_start
-        self.logger.log(counters["env_steps"], result)
-        return result
-
     def _on_sigterm(self, signum: int, frame: Any) -> None:
         self._stop.set()
+
+
+class _AsyncEvaluator:
+    """Deterministic evaluations in a background thread on a snapshot of the weights, so lock-step
+    workers are not held up. ``eval/wall_s`` is when the snapshot was taken (the training time that
+    produced the policy); ``eval/done_wall_s`` when its evaluation finished."""
+
+    def __init__(self, trainer: Trainer):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._trainer = trainer
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eval")
+        self._futures: list[Any] = []
+
+    def submit(self, weights: dict, counters: dict[str, int], wall_s: float) -> None:
+        self._futures.append(self._pool.submit(self._run, weights, counters, wall_s))
+
+    def _run(self, weights: dict, counters: dict[str, int], wall_s: float) -> dict[str, float]:
+        tr = self._trainer
+        result = tr.evaluate(weights, seed=counters["updates"])
+        result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0})
+        tr.logger.log(counters["env_steps"], result)
+        return result
+
+    def close(self) -> dict[str, float]:
+        """Waits for pending evaluations; returns the last one's result ({} if none ran)."""
+        self._pool.shutdown(wait=True)
+        return self._futures[-1].result() if self._futures else {}
 
 
 class _Prefetcher:
