@@ -1,0 +1,41 @@
+"""Session-wide checks shared by every test directory."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+_SHM = "/dev/shm"
+_PREFIX = "unilab_"
+
+
+def _segments() -> set[str]:
+    return {n for n in os.listdir(_SHM) if n.startswith(_PREFIX)} if os.path.isdir(_SHM) else set()
+
+
+def _ours_or_orphaned(name: str) -> bool:
+    """Created by this process, or by a process that is gone (a leak); not another live run's."""
+    head = name[len(_PREFIX) :].split("_", 1)[0]
+    if not head.isdigit():
+        return True
+    pid = int(head)
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False
+
+
+@pytest.fixture(scope="session", autouse=True)
+def no_leaked_shared_memory():
+    """Fails the session if the tests leave new ``unilab_*`` segments in /dev/shm."""
+    before = _segments()
+    yield
+    leaked = sorted(n for n in _segments() - before if _ours_or_orphaned(n))
+    if leaked:
+        pytest.fail(f"shared-memory segments leaked by the test session: {leaked}", pytrace=False)

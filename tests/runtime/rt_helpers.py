@@ -1,0 +1,117 @@
+"""Child-process bodies for the runtime stress tests (importable by spawned processes)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from unilab_jax.runtime.buffers import TrajectoryBuffer
+from unilab_jax.runtime.shm import SharedArrays
+from unilab_jax.runtime.weights import WeightChannel, WeightReader
+
+# A slot layout with every dtype the buffers use.
+PATTERN_FIELDS = {
+    "a": ((64,), np.dtype(np.float32)),
+    "b": ((), np.dtype(np.int64)),
+    "c": ((3,), np.dtype(np.int32)),
+    "d": ((), np.dtype(bool)),
+    "e": ((17,), np.dtype(np.float32)),
+}
+
+
+def weight_tree(value: float) -> dict:
+    """A tree of ~200k floats (so copies take long enough for a writer to race them)."""
+    return {
+        "actor": [{"w": np.full((48, 512), value, np.float32), "b": np.full((512,), value, np.float32)},
+                  {"w": np.full((512, 256), value, np.float32), "b": np.full((256,), value, np.float32)}],
+        "log_std": np.full((12,), value, np.float32),
+        "obs_norm": {"mean": np.full((48,), value, np.float32), "var": np.full((48,), value, np.float32),
+                     "count": np.full((), value, np.float32)},
+    }
+
+
+def weights_writer(handle_box, ctl_handle, max_seconds: float) -> None:
+    """Publishes constant trees with value == version as fast as it can until told to stop."""
+    # The channel is created by the writer itself (it is the owner) and its handle sent back.
+    ch = WeightChannel(weight_tree(0.0))
+    ctl = SharedArrays.attach(ctl_handle)
+    handle_box.put(ch.handle)
+    version = 0
+    deadline = time.monotonic() + max_seconds
+    try:
+        while not ctl["flags"][0] and time.monotonic() < deadline:
+            ch.publish(weight_tree(float(version)), version)
+            ctl["flags"][1] = version
+            version += 1
+    finally:
+        ctl["flags"][2] = 1  # writer done; keep the segment until the reader is done
+        while not ctl["flags"][3] and time.monotonic() < deadline + 30:
+            time.sleep(0.01)
+        ch.close()
+        ctl.close()
+
+
+def weights_reader(handle_box, ctl_handle, n_reads: int, result_queue) -> None:
+    """Reads ``n_reads`` times; records torn copies (leaves not all equal to the version)."""
+    handle = handle_box.get()
+    ctl = SharedArrays.attach(ctl_handle)
+    reader = WeightReader(handle)
+    torn, non_monotone, distinct, last = 0, 0, set(), -1
+    for _ in range(n_reads):
+        tree, version = reader.read(min_version=0, timeout=30.0)
+        for leaf in _leaves(tree):
+            if not np.all(leaf == np.float32(version)):
+                torn += 1
+                break
+        if version < last:
+            non_monotone += 1
+        last = version
+        distinct.add(version)
+        reader.version = -1  # force a full re-read next time (read() otherwise returns the newest)
+    ctl["flags"][0] = 1  # stop the writer
+    result_queue.put({"torn": torn, "non_monotone": non_monotone, "distinct": len(distinct),
+                      "retries": reader.retries, "reads": n_reads})
+    reader.close()
+    ctl["flags"][3] = 1
+    ctl.close()
+
+
+def _leaves(tree):
+    if isinstance(tree, dict):
+        for k in sorted(tree):
+            yield from _leaves(tree[k])
+    elif isinstance(tree, list):
+        for x in tree:
+            yield from _leaves(x)
+    else:
+        yield tree
+
+
+def fill_pattern(views: dict, value: int) -> None:
+    for arr in views.values():
+        if arr.dtype == bool:
+            arr[...] = bool(value % 2)
+        else:
+            arr[...] = value
+
+
+def pattern_ok(views: dict, value: int) -> bool:
+    for arr in views.values():
+        want = bool(value % 2) if arr.dtype == bool else arr.dtype.type(value)
+        if not np.all(arr == want):
+            return False
+    return True
+
+
+def slot_producer(handle, worker: int, n_slots: int, timeout: float) -> None:
+    """Fills slot after slot with the pattern ``value == publication index`` and publishes it."""
+    buf = TrajectoryBuffer.attach(handle)
+    try:
+        for i in range(n_slots):
+            slot = buf.acquire(worker, timeout=timeout)
+            views = buf.slot(worker, slot)
+            fill_pattern(views, i)
+            buf.publish(worker, slot)
+    finally:
+        buf.close()

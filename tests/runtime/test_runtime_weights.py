@@ -1,0 +1,121 @@
+"""Weight channel: round trip of a nested pytree, version rules, torn copies never accepted."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+import rt_helpers
+
+from unilab_jax.runtime.ring import RingTimeout
+from unilab_jax.runtime.shm import SharedArrays
+from unilab_jax.runtime.weights import WeightChannel, WeightReader
+
+
+class Stats(NamedTuple):
+    mean: np.ndarray
+    var: np.ndarray
+    count: np.ndarray
+
+
+def _tree(rng):
+    # dict insertion order deliberately unsorted: flattening must follow sorted keys both ways.
+    return {
+        "zeta": rng.standard_normal((3,)).astype(np.float32),
+        "actor": [{"w": rng.standard_normal((5, 4)).astype(np.float32), "b": np.zeros(4, np.float32)},
+                  {"w": rng.standard_normal((4, 2)).astype(np.float32), "b": np.ones(2, np.float32)}],
+        "obs_norm": Stats(rng.standard_normal(5).astype(np.float32), np.ones(5, np.float32),
+                          np.array(17.0, np.float32)),
+        "steps": np.array([3], np.int64),
+    }
+
+
+def _assert_tree_equal(a, b):
+    if isinstance(a, dict):
+        assert list(a) == list(b)
+        for k in a:
+            _assert_tree_equal(a[k], b[k])
+    elif isinstance(a, list | tuple):
+        assert type(a) is type(b) and len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            _assert_tree_equal(x, y)
+    else:
+        assert a.dtype == b.dtype and a.shape == b.shape
+        np.testing.assert_array_equal(a, b)
+
+
+def test_roundtrip_versions_and_normalizer_leaves():
+    rng = np.random.default_rng(0)
+    ch = WeightChannel(_tree(rng))
+    reader = WeightReader(ch.handle)
+    try:
+        assert reader.latest_version() == -1 and reader.poll() is None
+        with pytest.raises(RingTimeout):
+            reader.read(min_version=0, timeout=0.1)
+        trees = [_tree(rng) for _ in range(3)]
+        for v, t in enumerate(trees):
+            ch.publish(t, v)
+            got, version = reader.read(min_version=v)
+            assert version == v
+            _assert_tree_equal(got, t)
+            assert isinstance(got["obs_norm"], Stats)
+            assert reader.poll() is None  # nothing newer
+        ch.publish(trees[0], 10)
+        got, version = reader.poll()
+        assert version == 10
+        _assert_tree_equal(got, trees[0])
+        with pytest.raises(ValueError, match="increase"):
+            ch.publish(trees[0], 10)
+        bad = _tree(rng)
+        bad["actor"][0]["w"] = np.zeros((5, 5), np.float32)
+        with pytest.raises(ValueError, match="actor/0/w"):
+            ch.publish(bad, 11)
+    finally:
+        reader.close()
+        ch.close()
+
+
+def test_reader_refuses_a_corrupted_buffer_and_keeps_its_previous_tree():
+    ch = WeightChannel(rt_helpers.weight_tree(0.0))
+    reader = WeightReader(ch.handle)
+    try:
+        ch.publish(rt_helpers.weight_tree(1.0), 1)
+        tree, _ = reader.read()
+        active = int(ch.seg["header"][0])
+        ch.seg["data"][active, 100] ^= 0xFF  # what a torn copy looks like to the checksum
+        assert reader._try_read() is None and reader.retries == 1
+        with pytest.raises(RingTimeout):
+            reader.read(min_version=1, timeout=0.2)
+        assert np.all(tree["actor"][0]["w"] == 1.0), "a failed read must not clobber the last good tree"
+    finally:
+        reader.close()
+        ch.close()
+
+
+def test_weights_cross_process_stress_never_torn():
+    """Writer process publishes value == version trees nonstop; reader process reads 3000 times."""
+    ctl = SharedArrays.create({"flags": ((8,), np.int64)})
+    ctl["flags"][:] = 0
+    ctx = mp.get_context("spawn")
+    box, results = ctx.Queue(), ctx.Queue()
+    writer = ctx.Process(target=rt_helpers.weights_writer, args=(box, ctl.handle, 60.0))
+    reader = ctx.Process(target=rt_helpers.weights_reader, args=(box, ctl.handle, 3000, results))
+    writer.start()
+    reader.start()
+    try:
+        res = results.get(timeout=90)
+        reader.join(30)
+        writer.join(30)
+        assert reader.exitcode == 0 and writer.exitcode == 0
+        assert res["torn"] == 0, res
+        assert res["non_monotone"] == 0, res
+        assert res["distinct"] > 50, f"the writer hardly raced the reader: {res}"
+        assert ctl["flags"][1] > 100, "the writer published too little to stress anything"
+    finally:
+        for p in (writer, reader):
+            if p.is_alive():
+                p.kill()
+                p.join()
+        ctl.close()

@@ -1,0 +1,432 @@
+"""Shared-memory transition buffers: trajectory slots (on-policy) and per-worker replay rings.
+
+Both are built from a per-transition layout (:func:`transition_layout`: the task's fields from
+``TaskSpec`` plus the algorithm's extras), poison-filled at creation (NaN floats, -1 / max ints,
+True bools; ``policy_version == -1`` marks an unwritten transition), and shared between one
+learner and ``num_workers`` workers. The creator (learner) owns and unlinks the segments; workers
+attach through the picklable ``handle``.
+
+:class:`TrajectoryBuffer`
+    Per worker ``K`` slots, each holding every field as ``[T, M, ...]`` (horizon ``T``, the
+    worker's ``M`` envs), contiguous in memory (one slot = one byte range). Slot indices circulate
+    through two lock-free SPSC rings per worker (:mod:`unilab_jax.runtime.ring`): *free*
+    (learner -> worker) and *full* (worker -> learner). A worker publishes a slot with a checksum
+    of its bytes mixed with the full ring's sequence number; the learner verifies it before
+    reading, so it never reads a half-visible slot.
+
+:class:`ReplayBuffer`
+    Per worker a ring region of capacity ``C`` transitions (rounded up to a multiple of ``M``),
+    written by the worker ``M`` rows (one env step) at a time at its own cursor; the cursor is
+    published as a transition counter (one aligned int64 store) after the rows and their per-row
+    checksums. The learner samples uniformly over the valid rows of all regions; a sampled row whose
+    checksum does not match (being overwritten right now, or not yet visible) is redrawn.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from unilab_jax.runtime.ring import RingTimeout, SpscRing, checksum, fence, ring_words, wait_for
+from unilab_jax.runtime.shm import SharedArrays, ShmHandle
+
+__all__ = [
+    "BASE_FIELDS",
+    "ReplayBuffer",
+    "SlotCorruptError",
+    "TrajectoryBuffer",
+    "row_checksums",
+    "transition_layout",
+]
+
+# The task's per-transition fields, in memory order (extras follow).
+BASE_FIELDS = (
+    "obs", "critic_obs", "action", "reward", "terminated", "truncated", "next_obs", "next_critic_obs",
+    "reward_terms", "episode_return", "episode_length", "policy_version",
+)
+
+FieldLayout = dict[str, tuple[tuple[int, ...], np.dtype]]
+
+
+class SlotCorruptError(RuntimeError):
+    """Slot data never matched its checksum (a writer bug or memory corruption)."""
+
+
+def transition_layout(spec: Any, extras: Mapping[str, tuple[tuple[int, ...], Any]] | None = None) -> FieldLayout:
+    """Per-transition ``{field: (shape, dtype)}`` from a ``TaskSpec`` and an algorithm's extras."""
+    f32 = np.dtype(np.float32)
+    layout: FieldLayout = {
+        "obs": ((spec.obs_dim,), f32),
+        "critic_obs": ((spec.critic_obs_dim,), f32),
+        "action": ((spec.action_dim,), f32),
+        "reward": ((), f32),
+        "terminated": ((), np.dtype(bool)),
+        "truncated": ((), np.dtype(bool)),
+        "next_obs": ((spec.obs_dim,), f32),
+        "next_critic_obs": ((spec.critic_obs_dim,), f32),
+        "reward_terms": ((len(spec.reward_terms),), f32),
+        "episode_return": ((), f32),
+        "episode_length": ((), np.dtype(np.int32)),
+        "policy_version": ((), np.dtype(np.int64)),
+    }
+    for name, (shape, dtype) in (extras or {}).items():
+        if name in layout:
+            raise ValueError(f"algorithm extra {name!r} collides with a transition field")
+        layout[name] = (tuple(int(s) for s in shape), np.dtype(dtype))
+    return layout
+
+
+def _as_words(a: np.ndarray) -> np.ndarray:
+    """Reinterprets ``a`` as unsigned ints of the same itemsize (works on strided views)."""
+    return a.view(f"u{a.dtype.itemsize}")
+
+
+def row_checksums(rows: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """Per-row uint64 checksum over every field of ``rows`` (each [n, ...]); sorted field order.
+
+    Written identically by the replay writer (on its rows in shared memory) and the sampler (on
+    its gathered copy): per field a wrapped sum and an xor of the row's words, folded with odd
+    multipliers, then a splitmix64 finalizer.
+    """
+    h = np.full(n, 0x9E3779B97F4A7C15, dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        for name in sorted(rows):
+            a = rows[name]
+            u = _as_words(a.reshape(n, int(np.prod(a.shape[1:], dtype=np.int64))))
+            s = u.sum(axis=1, dtype=np.uint64)
+            x = np.bitwise_xor.reduce(u, axis=1).astype(np.uint64) if u.shape[1] else np.zeros(n, np.uint64)
+            h = (h ^ s) * np.uint64(0xBF58476D1CE4E5B9)
+            h = (h ^ x ^ (h >> np.uint64(29))) * np.uint64(0x94D049BB133111EB)
+        h ^= h >> np.uint64(31)
+    return h
+
+
+def _pad8(n: int) -> int:
+    return -(-n // 8) * 8
+
+
+# ---------------------------------------------------------------------------------------------
+# Trajectory slots
+# ---------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class TrajectoryBufferHandle:
+    fields: tuple[tuple[str, tuple[int, ...], str], ...]
+    num_workers: int
+    envs_per_worker: int
+    horizon: int
+    slots_per_worker: int
+    data: tuple[ShmHandle, ...]
+    control: ShmHandle
+
+
+class TrajectoryBuffer:
+    """K slots of ``[T, M, ...]`` per worker, with free/full slot rings (see module docstring).
+
+    Worker side: :meth:`acquire` / :meth:`try_acquire` a free slot, write :meth:`slot` views,
+    :meth:`publish`. Learner side: :meth:`take` (verifies the checksum), :meth:`copy_slot`,
+    :meth:`release`.
+    """
+
+    def __init__(self, handle: TrajectoryBufferHandle, data: list[SharedArrays], control: SharedArrays):
+        self.handle = handle
+        self.fields: FieldLayout = {n: (tuple(s), np.dtype(d)) for n, s, d in handle.fields}
+        self.num_workers = handle.num_workers
+        self.envs_per_worker = handle.envs_per_worker
+        self.horizon = handle.horizon
+        self.slots_per_worker = handle.slots_per_worker
+        self._data = data
+        self._control = control
+        self.free = [SpscRing(control["free"][w]) for w in range(self.num_workers)]
+        self.full = [SpscRing(control["full"][w]) for w in range(self.num_workers)]
+        self._sums = control["slot_sum"]
+        names = list(self.fields)
+        self._raw = [[d.byte_range(f"{k}/{names[0]}", f"{k}/{names[-1]}") for k in range(self.slots_per_worker)]
+                     for d in data]
+
+    @classmethod
+    def create(cls, fields: FieldLayout, num_workers: int, envs_per_worker: int, horizon: int,
+               slots_per_worker: int = 2) -> TrajectoryBuffer:
+        if min(num_workers, envs_per_worker, horizon, slots_per_worker) <= 0:
+            raise ValueError("num_workers, envs_per_worker, horizon and slots_per_worker must be positive")
+        t, m, k = int(horizon), int(envs_per_worker), int(slots_per_worker)
+        words = ring_words(k)
+        made: list[SharedArrays] = []
+        try:
+            control = SharedArrays.create(
+                {
+                    "free": ((num_workers, words), np.int64),
+                    "full": ((num_workers, words), np.int64),
+                    "slot_sum": ((num_workers, _pad8(k)), np.int64),
+                },
+                tag="tc",
+            )
+            made.append(control)
+            data = []
+            for w in range(num_workers):
+                layout = {f"{s}/{name}": ((t, m, *shape), dt) for s in range(k) for name, (shape, dt) in fields.items()}
+                data.append(SharedArrays.create(layout, tag=f"t{w}"))
+                made.append(data[-1])
+        except BaseException:
+            for seg in made:
+                seg.close()
+            raise
+        handle = TrajectoryBufferHandle(
+            tuple((n, tuple(s), np.dtype(d).str) for n, (s, d) in fields.items()),
+            int(num_workers), m, t, k, tuple(d.handle for d in data), control.handle,
+        )
+        buf = cls(handle, data, control)
+        for w in range(num_workers):
+            buf.free[w].init()
+            buf.full[w].init()
+            for s in range(k):
+                buf.free[w].push(s)
+        return buf
+
+    @classmethod
+    def from_spec(cls, spec: Any, extras: Mapping[str, tuple[tuple[int, ...], Any]] | None, num_workers: int,
+                  envs_per_worker: int, horizon: int, slots_per_worker: int = 2) -> TrajectoryBuffer:
+        """Built from a ``TaskSpec`` and an algorithm's ``extras(action_dim)``."""
+        return cls.create(transition_layout(spec, extras), num_workers, envs_per_worker, horizon, slots_per_worker)
+
+    @classmethod
+    def attach(cls, handle: TrajectoryBufferHandle) -> TrajectoryBuffer:
+        control = SharedArrays.attach(handle.control)
+        data = [SharedArrays.attach(h) for h in handle.data]
+        return cls(handle, data, control)
+
+    def close(self) -> None:
+        self.free, self.full = [], []
+        self._sums, self._raw = None, []
+        for seg in self._data:
+            seg.close()
+        self._control.close()
+
+    @property
+    def segment_names(self) -> list[str]:
+        return [self._control.name] + [d.name for d in self._data]
+
+    # ---- shared -------------------------------------------------------------------------------
+    def slot(self, worker: int, slot: int) -> dict[str, np.ndarray]:
+        """``{field: [T, M, ...]}`` views of one slot in shared memory."""
+        seg = self._data[worker]
+        return {name: seg[f"{slot}/{name}"] for name in self.fields}
+
+    def _slot_bytes(self, worker: int, slot: int) -> np.ndarray:
+        return self._raw[worker][slot]
+
+    # ---- worker side --------------------------------------------------------------------------
+    def try_acquire(self, worker: int) -> int | None:
+        got = self.free[worker].pop()
+        return None if got is None else got[0]
+
+    def acquire(self, worker: int, timeout: float | None = None, check=None) -> int:
+        return self.free[worker].pop_wait(timeout=timeout, check=check)[0]
+
+    def publish(self, worker: int, slot: int) -> int:
+        """Checksums the slot, stores the sum, then publishes the index; returns its sequence."""
+        ring = self.full[worker]
+        seq = ring.next_sequence()
+        self._sums[worker, slot] = checksum(self._slot_bytes(worker, slot), seq)
+        got = ring.push(slot)  # fences before the publishing store
+        if got is None:
+            raise RuntimeError(f"full-slot ring of worker {worker} overflowed (slot {slot} published twice?)")
+        return got
+
+    # ---- learner side -------------------------------------------------------------------------
+    def ready(self, worker: int) -> int:
+        """Number of full slots worker ``worker`` has published and the learner not taken."""
+        return len(self.full[worker])
+
+    def take(self, worker: int, verify_timeout: float = 5.0) -> tuple[int, int] | None:
+        """Takes the next full slot of ``worker`` (or None): returns (slot, sequence) after verifying.
+
+        The checksum is recomputed until it matches (the writer's bytes may reach this core after the
+        index); :class:`SlotCorruptError` after ``verify_timeout`` seconds.
+        """
+        got = self.full[worker].peek()
+        if got is None:
+            return None
+        slot, seq = got
+        raw = self._slot_bytes(worker, slot)
+
+        def verified():
+            ok = checksum(raw, seq) == int(self._sums[worker, slot])
+            if not ok:
+                fence()
+            return True if ok else None
+
+        try:
+            wait_for(verified, timeout=verify_timeout, what="slot checksum")
+        except RingTimeout:
+            raise SlotCorruptError(
+                f"slot {slot} of worker {worker} (sequence {seq}) never matched its checksum"
+            ) from None
+        self.full[worker].advance()
+        return slot, seq
+
+    def copy_slot(self, worker: int, slot: int, out: Mapping[str, np.ndarray], col: int = 0) -> None:
+        """Copies the slot into ``out[field][:, col:col+M]`` (out arrays are [T, >= col+M, ...])."""
+        m = self.envs_per_worker
+        for name, src in self.slot(worker, slot).items():
+            out[name][:, col : col + m] = src
+
+    def release(self, worker: int, slot: int) -> None:
+        """Hands a taken slot back to its worker (after every read of it)."""
+        fence()
+        if self.free[worker].push(slot) is None:
+            raise RuntimeError(f"free-slot ring of worker {worker} overflowed (slot {slot} released twice?)")
+
+    def empty_batch(self, n_slots: int) -> dict[str, np.ndarray]:
+        t, m = self.horizon, self.envs_per_worker
+        return {name: np.empty((t, n_slots * m, *shape), dt) for name, (shape, dt) in self.fields.items()}
+
+
+# ---------------------------------------------------------------------------------------------
+# Replay rings
+# ---------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class ReplayBufferHandle:
+    fields: tuple[tuple[str, tuple[int, ...], str], ...]
+    num_workers: int
+    envs_per_worker: int
+    capacity: int
+    data: tuple[ShmHandle, ...]
+    control: ShmHandle
+
+
+class ReplayBuffer:
+    """Per-worker ring regions of ``capacity`` transitions; uniform sampling over all valid rows.
+
+    Worker side: ``start, views = rows(worker)`` (``{field: [M, ...]}`` views at the cursor), write
+    them, :meth:`commit`. Learner side: :meth:`sample`, :meth:`size`.
+    """
+
+    def __init__(self, handle: ReplayBufferHandle, data: list[SharedArrays], control: SharedArrays):
+        self.handle = handle
+        self.fields: FieldLayout = {n: (tuple(s), np.dtype(d)) for n, s, d in handle.fields}
+        self.num_workers = handle.num_workers
+        self.envs_per_worker = handle.envs_per_worker
+        self.capacity = handle.capacity
+        self._data = data
+        self._control = control
+        self._count = control["count"]
+        self.resampled = 0  # rows redrawn because their checksum did not match (stats)
+
+    @classmethod
+    def create(cls, fields: FieldLayout, num_workers: int, envs_per_worker: int, capacity: int) -> ReplayBuffer:
+        if min(num_workers, envs_per_worker, capacity) <= 0:
+            raise ValueError("num_workers, envs_per_worker and capacity must be positive")
+        m = int(envs_per_worker)
+        cap = -(-int(capacity) // m) * m
+        made: list[SharedArrays] = []
+        try:
+            control = SharedArrays.create({"count": ((num_workers, 8), np.int64)}, tag="rc")
+            made.append(control)
+            control["count"][:] = 0
+            data = []
+            for w in range(num_workers):
+                layout = {name: ((cap, *shape), dt) for name, (shape, dt) in fields.items()}
+                layout["_row_sum"] = ((cap,), np.dtype(np.uint64))
+                data.append(SharedArrays.create(layout, tag=f"r{w}"))
+                made.append(data[-1])
+        except BaseException:
+            for seg in made:
+                seg.close()
+            raise
+        handle = ReplayBufferHandle(
+            tuple((n, tuple(s), np.dtype(d).str) for n, (s, d) in fields.items()),
+            int(num_workers), m, cap, tuple(d.handle for d in data), control.handle,
+        )
+        return cls(handle, data, control)
+
+    @classmethod
+    def from_spec(cls, spec: Any, extras: Mapping[str, tuple[tuple[int, ...], Any]] | None, num_workers: int,
+                  envs_per_worker: int, capacity: int) -> ReplayBuffer:
+        """Built from a ``TaskSpec`` and an algorithm's ``extras(action_dim)``."""
+        return cls.create(transition_layout(spec, extras), num_workers, envs_per_worker, capacity)
+
+    @classmethod
+    def attach(cls, handle: ReplayBufferHandle) -> ReplayBuffer:
+        control = SharedArrays.attach(handle.control)
+        data = [SharedArrays.attach(h) for h in handle.data]
+        return cls(handle, data, control)
+
+    def close(self) -> None:
+        self._count = None
+        for seg in self._data:
+            seg.close()
+        self._control.close()
+
+    @property
+    def segment_names(self) -> list[str]:
+        return [self._control.name] + [d.name for d in self._data]
+
+    # ---- worker side --------------------------------------------------------------------------
+    def count(self, worker: int) -> int:
+        """Transitions worker ``worker`` has committed in total (its cursor is count % capacity)."""
+        return int(self._count[worker, 0])
+
+    def rows(self, worker: int) -> tuple[int, dict[str, np.ndarray]]:
+        """(start row, ``{field: [M, ...]}`` views) of the next M rows the worker writes."""
+        start = self.count(worker) % self.capacity
+        seg = self._data[worker]
+        end = start + self.envs_per_worker
+        return start, {name: seg[name][start:end] for name in self.fields}
+
+    def commit(self, worker: int) -> int:
+        """Checksums the M rows at the cursor, then publishes them by bumping the counter."""
+        start, views = self.rows(worker)
+        m = self.envs_per_worker
+        self._data[worker]["_row_sum"][start : start + m] = row_checksums(views, m)
+        fence()
+        new = self.count(worker) + m
+        self._count[worker, 0] = new  # the single publishing store
+        return new
+
+    # ---- learner side -------------------------------------------------------------------------
+    def sizes(self) -> np.ndarray:
+        counts = self._count[:, 0].copy()
+        fence()
+        return np.minimum(counts, self.capacity)
+
+    def size(self) -> int:
+        return int(self.sizes().sum())
+
+    def sample(self, batch_size: int, rng: np.random.Generator, max_rounds: int = 100) -> dict[str, np.ndarray]:
+        """``{field: [B, ...]}`` drawn uniformly (with replacement) over every valid row.
+
+        Rows whose checksum does not match their copy are redrawn (at most ``max_rounds`` rounds).
+        """
+        sizes = self.sizes()
+        total = int(sizes.sum())
+        if total == 0:
+            raise ValueError("the replay buffer is empty")
+        bounds = np.concatenate([[0], np.cumsum(sizes)])
+        out = {name: np.empty((batch_size, *shape), dt) for name, (shape, dt) in self.fields.items()}
+        pending = np.arange(batch_size)
+        for _ in range(max_rounds):
+            flat = rng.integers(0, total, size=pending.size)
+            worker = np.searchsorted(bounds, flat, side="right") - 1
+            row = flat - bounds[worker]
+            sums = np.empty(pending.size, np.uint64)
+            got = {name: np.empty((pending.size, *shape), dt) for name, (shape, dt) in self.fields.items()}
+            for w in np.unique(worker):
+                sel = worker == w
+                idx = row[sel]
+                seg = self._data[int(w)]
+                sums[sel] = seg["_row_sum"][idx]
+                for name in self.fields:
+                    got[name][sel] = seg[name][idx]
+            good = row_checksums(got, pending.size) == sums
+            for name in self.fields:
+                out[name][pending[good]] = got[name][good]
+            bad = ~good
+            if not bad.any():
+                return out
+            self.resampled += int(bad.sum())
+            pending = pending[bad]
+            fence()
+        raise SlotCorruptError(f"{pending.size} replay rows never matched their checksums")

@@ -1,0 +1,542 @@
+"""WorkerPool: the learner's handle on the rollout workers, their buffers and the weight channel.
+
+::
+
+    pool = WorkerPool("cartpole_balance", {}, num_workers=4, envs_per_worker=64, seed=0,
+                      algo_module="unilab_jax.algos.ppo", weight_template=weights, horizon=24)
+    pool.start()
+    pool.publish(weights, version=0)
+    for it in range(...):
+        batch, info = pool.collect()          # trajectory buffers: {field: [T, W*M, ...]} numpy
+        ...update...
+        pool.publish(new_weights, version=it + 1)
+    pool.close()
+
+Replay algorithms use ``pool.sample(batch_size, rng)`` and ``pool.replay_size()`` instead of
+``collect``. ``serial=True`` builds the same :class:`~unilab_jax.runtime.worker.Worker` objects in
+this process and runs their chunks inside ``collect`` / ``sample`` / ``pump``: the same shared-memory
+path, deterministic, debuggable with pdb.
+
+Worker processes use the ``spawn`` context. While they are started, the learner's ``__main__``
+module is hidden from multiprocessing so the children do not re-import the training script (which
+would import jax into every worker and slow its start); workers import only the runtime, the task
+and the algorithm module. A dead worker is noticed while the learner waits (exit code checked every
+``poll`` seconds) and raises :class:`WorkerDiedError` with the worker's traceback. ``close()``
+raises a shared stop flag, joins the workers (terminate/kill after a grace period) and unlinks every
+segment; it is idempotent and also runs from a ``weakref.finalize`` at exit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import logging
+import multiprocessing as mp
+import os
+import sys
+import time
+import weakref
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import numpy as np
+
+from unilab_jax.runtime.buffers import ReplayBuffer, TrajectoryBuffer, transition_layout
+from unilab_jax.runtime.ring import RingTimeout, wait_for
+from unilab_jax.runtime.shm import SharedArrays, cleanup_stale
+from unilab_jax.runtime.weights import WeightChannel
+from unilab_jax.runtime.worker import (
+    CHUNKS,
+    EPISODES,
+    FAILED,
+    JAX,
+    PID,
+    STATUS,
+    STEPS,
+    TERM_ROWS,
+    VERSION,
+    W_RETRIES,
+    Worker,
+    WorkerArgs,
+    control_layout,
+    init_control,
+    read_error,
+    worker_main,
+)
+
+__all__ = ["WorkerPool", "WorkerDiedError", "load_algo"]
+
+log = logging.getLogger(__name__)
+
+
+class WorkerDiedError(RuntimeError):
+    """A worker process exited or failed; carries its exit code and traceback."""
+
+
+def load_algo(name: str) -> Any:
+    """Imports an algorithm module and checks that it declares what the runtime needs."""
+    if name in ("__main__", "__mp_main__"):
+        raise ValueError("the algorithm module must be importable by name in the workers, not __main__")
+    mod = importlib.import_module(name)
+    missing = [a for a in ("SYNC", "BUFFER", "extras", "act") if not hasattr(mod, a)]
+    if missing:
+        raise ValueError(f"algorithm module {name!r} lacks {missing} (see docs/ARCHITECTURE.md)")
+    if mod.SYNC not in ("lockstep", "async"):
+        raise ValueError(f"{name}.SYNC must be 'lockstep' or 'async', got {mod.SYNC!r}")
+    if mod.BUFFER not in ("trajectory", "replay"):
+        raise ValueError(f"{name}.BUFFER must be 'trajectory' or 'replay', got {mod.BUFFER!r}")
+    return mod
+
+
+@contextlib.contextmanager
+def _hidden_main() -> Iterator[None]:
+    """Keeps spawn from re-running the learner's main script in the workers."""
+    main = sys.modules.get("__main__")
+    saved = {}
+    if main is not None:
+        for attr in ("__file__", "__spec__"):
+            if hasattr(main, attr):
+                saved[attr] = getattr(main, attr)
+        if "__file__" in saved:
+            del main.__file__
+        main.__spec__ = None
+    try:
+        yield
+    finally:
+        if main is not None:
+            for attr, value in saved.items():
+                setattr(main, attr, value)
+            if "__spec__" not in saved:
+                with contextlib.suppress(AttributeError):
+                    del main.__spec__
+
+
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
+                "NUMEXPR_NUM_THREADS", "BLIS_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _worker_environment(threads: int) -> Iterator[None]:
+    """Spawned workers inherit the environment: pin their BLAS / OpenMP pools to ``threads``.
+
+    A worker's policy matmuls are tiny ([M, 48] x [48, 512] ...); a BLAS pool of one thread per core
+    in each of W workers oversubscribes the CPU and made inference ~20x slower in measurements here.
+    """
+    saved = {k: os.environ.get(k) for k in _THREAD_VARS}
+    os.environ.update({k: str(threads) for k in _THREAD_VARS})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+class _Resources:
+    """What must be released at close: processes and segments (referenced by the finalizer)."""
+
+    def __init__(self) -> None:
+        self.procs: list[Any] = []
+        self.closers: list[Any] = []  # objects with close(), closed in reverse order
+        self.control: SharedArrays | None = None
+        self.closed = False
+
+    def shutdown(self, grace: float = 5.0) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        if self.control is not None:
+            with contextlib.suppress(Exception):
+                self.control["flags"][0] = 1
+        deadline = time.monotonic() + grace
+        for p in self.procs:
+            p.join(max(0.0, deadline - time.monotonic()))
+        for p in self.procs:
+            if p.is_alive():
+                p.terminate()
+        for p in self.procs:
+            p.join(2.0)
+            if p.is_alive():
+                p.kill()
+                p.join(2.0)
+        for obj in reversed(self.closers):
+            with contextlib.suppress(Exception):
+                obj.close()
+
+
+class WorkerPool:
+    """Rollout workers + shared-memory buffers + weight channel (see module docstring).
+
+    Args:
+      task_name, task_overrides: passed to ``tasks.make`` in every worker (validated here first).
+      num_workers, envs_per_worker: W processes with M envs each; worker ``i`` is seeded
+        ``seed * 1000 + i``.
+      algo_module: import path of the algorithm module (``SYNC``, ``BUFFER``, ``extras``, ``act``).
+      weight_template: numpy pytree with the shapes/dtypes of the published weights.
+      horizon: T, control steps per trajectory slot (also the lockstep chunk in replay mode).
+      slots_per_worker: K trajectory slots per worker.
+      replay_capacity: transitions per worker region (replay buffers).
+      serial: run the workers in this process.
+      wait_timeout: worker-side wait limit for weights / free slots (None: until stopped).
+      poll: how often waits check for dead workers, seconds.
+      worker_threads: BLAS / OpenMP threads per worker process (1: no oversubscription). Serial
+        mode runs with this process's settings.
+    """
+
+    def __init__(
+        self,
+        task_name: str,
+        task_overrides: Mapping[str, Any] | None = None,
+        num_workers: int = 1,
+        envs_per_worker: int = 1,
+        seed: int = 0,
+        algo_module: str = "",
+        weight_template: Any = None,
+        horizon: int = 32,
+        slots_per_worker: int = 2,
+        replay_capacity: int = 0,
+        serial: bool = False,
+        *,
+        wait_timeout: float | None = None,
+        poll: float = 0.05,
+        worker_threads: int = 1,
+    ):
+        import tasks
+
+        if num_workers <= 0 or envs_per_worker <= 0 or horizon <= 0:
+            raise ValueError("num_workers, envs_per_worker and horizon must be positive")
+        if weight_template is None:
+            raise ValueError("weight_template (a numpy pytree) is required")
+        self.algo = load_algo(algo_module)
+        self.sync: str = self.algo.SYNC
+        self.buffer_kind: str = self.algo.BUFFER
+        if self.buffer_kind == "replay" and replay_capacity <= 0:
+            raise ValueError(f"{algo_module} uses a replay buffer: replay_capacity must be positive")
+        if self.buffer_kind == "trajectory" and slots_per_worker <= 0:
+            raise ValueError("slots_per_worker must be positive")
+        overrides = dict(task_overrides or {})
+        probe = tasks.make(task_name, 1, seed, overrides)  # fails here, before any worker starts
+        self.spec = probe.spec
+        probe.close()
+        self.task_name, self.task_overrides = task_name, overrides
+        self.num_workers, self.envs_per_worker = int(num_workers), int(envs_per_worker)
+        self.horizon, self.seed, self.serial = int(horizon), int(seed), bool(serial)
+        self.algo_module = algo_module
+        self.poll = float(poll)
+        self.worker_threads = int(worker_threads)
+        self.fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
+
+        stale = cleanup_stale()  # segments of runs whose creator was killed (kill -9 of the tree)
+        if stale:
+            log.warning("removed %d stale shared-memory segments of dead runs: %s", len(stale), stale)
+        self._res = _Resources()
+        self._finalizer = weakref.finalize(self, self._res.shutdown)
+        try:
+            ctl = SharedArrays.create(control_layout(num_workers, len(self.spec.reward_terms)), tag="ctl")
+            self._res.closers.append(ctl)
+            self._res.control = ctl
+            init_control(ctl)
+            self._ctl = ctl
+            self.weights = WeightChannel(weight_template)
+            self._res.closers.append(self.weights)
+            if self.buffer_kind == "trajectory":
+                self.buffer: TrajectoryBuffer | ReplayBuffer = TrajectoryBuffer.create(
+                    self.fields, num_workers, envs_per_worker, horizon, slots_per_worker)
+            else:
+                self.buffer = ReplayBuffer.create(self.fields, num_workers, envs_per_worker, replay_capacity)
+            self._res.closers.append(self.buffer)
+        except BaseException:
+            self._res.shutdown()
+            raise
+        self._args = [
+            WorkerArgs(
+                worker_id=i, task_name=task_name, task_overrides=tuple(sorted(overrides.items())),
+                envs_per_worker=self.envs_per_worker, seed=self.seed, algo_module=algo_module,
+                sync=self.sync, buffer_kind=self.buffer_kind, horizon=self.horizon,
+                buffer_handle=self.buffer.handle, weights_handle=self.weights.handle,
+                control_handle=ctl.handle, parent_pid=os.getpid(), wait_timeout=wait_timeout,
+            )
+            for i in range(num_workers)
+        ]
+        self._ctx = mp.get_context("spawn")
+        self._procs: list[Any] = [None] * num_workers
+        self._serial_workers: list[Worker] = []
+        self._started = False
+        self._t_start = time.monotonic()
+        self._last_stats: tuple[float, int, np.ndarray, np.ndarray] | None = None
+        self._last_death_check = 0.0
+        self.version = -1
+
+    # ---- lifecycle ----------------------------------------------------------------------------
+    @property
+    def segment_names(self) -> list[str]:
+        return [self._ctl.name, self.weights.seg.name, *self.buffer.segment_names]
+
+    def start(self, wait: bool = True, timeout: float = 300.0) -> WorkerPool:
+        """Starts the workers; with ``wait`` returns once every worker has built its task."""
+        if self._res.closed:
+            raise RuntimeError("the pool is closed")
+        if self._started:
+            return self
+        self._started = True
+        if self.serial:
+            for args in self._args:
+                w = Worker(args)
+                self._serial_workers.append(w)
+                self._res.closers.append(w)
+        else:
+            with _hidden_main(), _worker_environment(self.worker_threads):
+                for i in range(self.num_workers):
+                    self._spawn(i)
+            if wait:
+                status = self._ctl["worker"][:, STATUS]
+                wait_for(lambda: True if (status != 0).all() else None, timeout=timeout,
+                         check=self._check_workers, poll=self.poll, what="workers to start")
+                self._check_workers()
+        self._t_start = time.monotonic()
+        return self
+
+    def _spawn(self, i: int) -> None:
+        # A respawn (later) would: reclaim the dead worker's slot, reset its status, and call this.
+        p = self._ctx.Process(target=worker_main, args=(self._args[i],), name=f"unilab-worker-{i}", daemon=True)
+        p.start()
+        self._procs[i] = p
+        self._res.procs.append(p)
+
+    def close(self, grace: float = 5.0) -> None:
+        """Stops the workers (within ``grace`` s, then terminate/kill), unlinks every segment."""
+        self._res.shutdown(grace)
+        self._finalizer.detach()
+
+    @property
+    def closed(self) -> bool:
+        return self._res.closed
+
+    def __enter__(self) -> WorkerPool:
+        return self.start()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def _check_workers(self) -> None:
+        """Raises :class:`WorkerDiedError` if a worker failed or exited."""
+        if self._res.closed:
+            raise RuntimeError("the pool is closed")
+        words = self._ctl["worker"]
+        for i, p in enumerate(self._procs):
+            if p is None:
+                continue
+            failed = words[i, STATUS] == FAILED
+            if failed or not p.is_alive():
+                if not failed:
+                    p.join(0.5)
+                code = p.exitcode
+                text = read_error(self._ctl, i)
+                raise WorkerDiedError(
+                    f"rollout worker {i} (pid {p.pid}) "
+                    + ("failed" if failed else f"exited with code {code}")
+                    + (f":\n{text}" if text else " without a traceback (killed?)")
+                )
+
+    def _maybe_check_workers(self) -> None:
+        now = time.monotonic()
+        if now - self._last_death_check > self.poll:
+            self._last_death_check = now
+            self._check_workers()
+
+    # ---- weights ------------------------------------------------------------------------------
+    def publish(self, weights: Any, version: int) -> None:
+        """Publishes a numpy weight pytree (same structure as the template) as ``version``."""
+        self.weights.publish(weights, version)
+        self.version = int(version)
+
+    # ---- trajectory mode ----------------------------------------------------------------------
+    def _need(self, kind: str) -> None:
+        if self.buffer_kind != kind:
+            raise RuntimeError(f"{self.algo_module} uses a {self.buffer_kind} buffer; this call needs {kind}")
+        if not self._started:
+            raise RuntimeError("call pool.start() first")
+        if self._res.closed:
+            raise RuntimeError("the pool is closed")
+
+    def _pump_serial(self, worker: int) -> None:
+        if not self._serial_workers[worker].run_chunk(block=False):
+            raise RuntimeError(
+                f"serial worker {worker} cannot collect: "
+                + (f"lockstep needs weights newer than version {self._serial_workers[worker].chunk_version}; "
+                   "publish before collect" if self.sync == "lockstep" or self.version < 0
+                   else "no free slot")
+            )
+
+    def collect(self, n_slots: int | None = None, timeout: float = 600.0,
+                out: dict[str, np.ndarray] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Takes ``n_slots`` full slots (default one per worker), copies them out, releases them.
+
+        Returns ``({field: [T, n_slots * M, ...]}, info)``; slots are ordered by worker, then by
+        publication. In lockstep mode ``n_slots`` must be ``num_workers`` (one slot per worker per
+        weight version). ``out`` may pass preallocated arrays of those shapes to reuse.
+        """
+        self._need("trajectory")
+        n = self.num_workers if n_slots is None else int(n_slots)
+        if n <= 0:
+            raise ValueError("n_slots must be positive")
+        if self.sync == "lockstep" and n != self.num_workers:
+            raise ValueError(f"lockstep collect takes one slot per worker: n_slots={self.num_workers}, got {n}")
+        buf: TrajectoryBuffer = self.buffer  # type: ignore[assignment]
+        if n > self.num_workers * buf.slots_per_worker:
+            raise ValueError(f"collect(n_slots={n}) needs more slots than the {self.num_workers} x "
+                             f"{buf.slots_per_worker} that exist (slots are released after the copy)")
+        t0 = time.monotonic()
+        taken: list[tuple[int, int, int]] = []  # (worker, sequence, slot)
+        if self.sync == "lockstep":
+            for w in range(self.num_workers):
+                if self.serial:
+                    self._pump_serial(w)
+                got = wait_for(lambda w=w: buf.take(w), timeout=self._remaining(t0, timeout),
+                               check=self._check_workers, poll=self.poll, what=f"slot from worker {w}")
+                taken.append((w, got[1], got[0]))
+        else:
+            per_worker = np.zeros(self.num_workers, np.int64)
+            rr = 0
+            while len(taken) < n:
+                if self.serial:
+                    w = int(np.argmin(per_worker))
+                    if buf.ready(w) == 0:
+                        self._pump_serial(w)
+                    got = buf.take(w)
+                else:
+                    got = None
+                    for k in range(self.num_workers):
+                        w = (rr + k) % self.num_workers
+                        got = buf.take(w)
+                        if got is not None:
+                            break
+                    rr = (rr + 1) % self.num_workers
+                    if got is None:
+                        try:
+                            self._maybe_check_workers()
+                            remaining = self._remaining(t0, timeout)
+                            wait_for(lambda: True if any(buf.ready(i) for i in range(self.num_workers)) else None,
+                                     timeout=min(remaining, self.poll), what="full slot")
+                        except RingTimeout:
+                            pass
+                        continue
+                taken.append((w, got[1], got[0]))
+                per_worker[w] += 1
+        wait_s = time.monotonic() - t0
+        taken.sort()
+        batch = out if out is not None else buf.empty_batch(n)
+        m = self.envs_per_worker
+        for j, (w, _, slot) in enumerate(taken):
+            buf.copy_slot(w, slot, batch, col=j * m)
+        for w, _, slot in taken:
+            buf.release(w, slot)
+        versions = batch["policy_version"]
+        info = {
+            "workers": [w for w, _, _ in taken],
+            "policy_version_min": int(versions.min()),
+            "policy_version_max": int(versions.max()),
+            "wait_s": wait_s,
+            "copy_s": time.monotonic() - t0 - wait_s,
+            "n_slots": n,
+        }
+        return batch, info
+
+    def _remaining(self, t0: float, timeout: float) -> float:
+        left = timeout - (time.monotonic() - t0)
+        if left <= 0:
+            raise TimeoutError(f"collect timed out after {timeout:.1f} s; worker status: {self._status_line()}")
+        return left
+
+    def _status_line(self) -> str:
+        words = self._ctl["worker"]
+        return ", ".join(f"w{i}: steps={words[i, STEPS]} chunks={words[i, CHUNKS]} version={words[i, VERSION]}"
+                         for i in range(self.num_workers))
+
+    # ---- replay mode --------------------------------------------------------------------------
+    def pump(self, steps: int = 1) -> int:
+        """Serial replay mode: runs ``steps`` env steps in every worker (no-op with processes)."""
+        if not self.serial:
+            return 0
+        self._need("replay")
+        return sum(w.run_steps(steps) for w in self._serial_workers)
+
+    def replay_size(self) -> int:
+        self._need("replay")
+        return self.buffer.size()  # type: ignore[union-attr]
+
+    def sample(self, batch_size: int, rng: np.random.Generator, serial_steps: int = 1) -> dict[str, np.ndarray]:
+        """``{field: [B, ...]}`` sampled uniformly from every worker's replay region.
+
+        In serial mode first runs ``serial_steps`` env steps per worker.
+        """
+        self._need("replay")
+        if self.serial:
+            self.pump(serial_steps)
+        else:
+            self._maybe_check_workers()
+        return self.buffer.sample(batch_size, rng)  # type: ignore[union-attr]
+
+    def wait_replay(self, min_size: int, timeout: float = 600.0) -> int:
+        """Blocks until the replay buffer holds ``min_size`` transitions (serial: pumps)."""
+        self._need("replay")
+        most = self.num_workers * self.buffer.capacity  # type: ignore[union-attr]
+        if min_size > most:
+            raise ValueError(f"wait_replay({min_size}): the replay capacity is {most} transitions in all")
+        t0 = time.monotonic()
+        while self.replay_size() < min_size:
+            if self.serial:
+                if self.pump(1) == 0:
+                    raise RuntimeError("serial workers cannot step: publish weights first")
+            else:
+                self._remaining(t0, timeout)
+                self._maybe_check_workers()
+                time.sleep(min(self.poll, 0.01))
+        return self.replay_size()
+
+    # ---- monitoring ---------------------------------------------------------------------------
+    def env_steps(self) -> int:
+        return int(self._ctl["worker"][:, STEPS].sum())
+
+    def stats(self) -> dict[str, Any]:
+        """Env steps and rates, recent episodes, per-term reward means (since the previous call)."""
+        words = self._ctl["worker"].copy()
+        now = time.monotonic()
+        steps = int(words[:, STEPS].sum())
+        term_sum = self._ctl["term_sum"].sum(axis=0)
+        term_rows = int(words[:, TERM_ROWS].sum())
+        if self._last_stats is None:
+            prev_t, prev_steps, prev_sum, prev_rows = self._t_start, 0, np.zeros_like(term_sum), 0
+        else:
+            prev_t, prev_steps, prev_sum, prev_rows = self._last_stats
+        self._last_stats = (now, steps, term_sum, term_rows)
+        dt = max(now - prev_t, 1e-9)
+        n_ep = np.minimum(words[:, EPISODES], self._ctl["ep_return"].shape[1])
+        returns = np.concatenate([self._ctl["ep_return"][i, : n_ep[i]] for i in range(self.num_workers)])
+        lengths = np.concatenate([self._ctl["ep_length"][i, : n_ep[i]] for i in range(self.num_workers)])
+        rows = max(term_rows - prev_rows, 1)
+        terms = {name: float((term_sum[i] - prev_sum[i]) / rows) for i, name in enumerate(self.spec.reward_terms)}
+        retries = int(words[:, W_RETRIES].sum())
+        out = {
+            "env_steps": steps,
+            "env_steps_per_s": (steps - prev_steps) / dt,
+            "env_steps_per_s_total": steps / max(now - self._t_start, 1e-9),
+            "episodes": int(words[:, EPISODES].sum()),
+            "episode_return_mean": float(returns.mean()) if returns.size else float("nan"),
+            "episode_length_mean": float(lengths.mean()) if lengths.size else float("nan"),
+            "recent_episode_returns": returns,
+            "recent_episode_lengths": lengths,
+            "reward_terms": terms,
+            "worker_policy_versions": words[:, VERSION].tolist(),
+            "published_version": self.version,
+            "weight_read_retries": retries,
+            "chunks": int(words[:, CHUNKS].sum()),
+            "worker_pids": words[:, PID].tolist(),
+            "workers_with_jax": int(words[:, JAX].sum()),
+        }
+        if isinstance(self.buffer, ReplayBuffer):
+            out["replay_size"] = self.buffer.size()
+            out["replay_resampled"] = self.buffer.resampled
+        return out

@@ -1,0 +1,328 @@
+"""Rollout worker: MuJoCo task + numpy policy inference, writing transitions into shared memory.
+
+A :class:`Worker` runs in a spawned process (:func:`worker_main`) or, in serial mode, inside the
+learner process; both run the same code. Per *chunk* (``T`` control steps) it
+
+1. gets weights through the weight channel: in ``"lockstep"`` mode it waits until the published
+   version is newer than the one that produced its previous chunk; in ``"async"`` mode it never
+   waits (after the very first publish) and picks up newer weights before every step;
+2. in trajectory mode takes a free slot (waiting for one if the learner holds them all);
+3. steps its ``M`` envs ``T`` times: noise from its own ``np.random.Generator``, ``act`` (numpy),
+   ``task.step``, and writes every field of the transition straight into the slot (or the replay
+   rows at its cursor), stamping ``policy_version`` and tracking per-env episode return / length;
+4. publishes the slot (trajectory) or commits each step's rows (replay).
+
+Only numpy, mujoco, the task and the algorithm module are imported here; never jax.
+Counters for monitoring (env steps, finished episodes, reward-term sums, status, errors) live in a
+small shared control segment that the learner reads in :meth:`WorkerPool.stats`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import os
+import signal
+import sys
+import time
+import traceback
+from typing import Any
+
+import numpy as np
+
+from unilab_jax.runtime.buffers import ReplayBuffer, TrajectoryBuffer
+from unilab_jax.runtime.ring import fence
+from unilab_jax.runtime.shm import SharedArrays, ShmHandle
+from unilab_jax.runtime.weights import WeightReader
+
+__all__ = ["Worker", "WorkerArgs", "control_layout", "worker_main", "Stopped"]
+
+# Per-worker int64 words of the control segment ("worker" [W, 16]).
+STEPS, STATUS, PID, EPISODES, VERSION, CHUNKS, HEARTBEAT, W_READS, W_RETRIES, JAX, TERM_ROWS = range(11)
+# Status values.
+NEW, READY, STOPPED, FAILED = 0, 1, 2, 3
+ERROR_BYTES = 4096
+EPISODE_WINDOW = 64
+
+
+def control_layout(num_workers: int, n_terms: int, episode_window: int = EPISODE_WINDOW) -> dict:
+    return {
+        "flags": ((16,), np.int64),  # [0]: stop
+        "worker": ((num_workers, 16), np.int64),
+        "ep_return": ((num_workers, episode_window), np.float32),
+        "ep_length": ((num_workers, episode_window), np.int32),
+        "term_sum": ((num_workers, max(n_terms, 1)), np.float64),
+        "error": ((num_workers, ERROR_BYTES), np.uint8),
+    }
+
+
+def init_control(ctl: SharedArrays) -> None:
+    ctl["flags"][:] = 0
+    ctl["worker"][:] = 0
+    ctl["worker"][:, VERSION] = -1
+    ctl["term_sum"][:] = 0.0
+    ctl["error"][:] = 0
+
+
+class Stopped(Exception):
+    """The pool asked the worker to stop (or the learner process died)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class WorkerArgs:
+    """Everything a worker needs (picklable, sent to the spawned process)."""
+
+    worker_id: int
+    task_name: str
+    task_overrides: tuple[tuple[str, Any], ...]
+    envs_per_worker: int
+    seed: int  # the pool's seed; the worker uses seed * 1000 + worker_id
+    algo_module: str
+    sync: str  # "lockstep" | "async"
+    buffer_kind: str  # "trajectory" | "replay"
+    horizon: int
+    buffer_handle: Any
+    weights_handle: Any
+    control_handle: ShmHandle
+    parent_pid: int
+    wait_timeout: float | None = None  # None: wait for weights / slots until stopped
+
+    @property
+    def worker_seed(self) -> int:
+        return self.seed * 1000 + self.worker_id
+
+
+class Worker:
+    """One worker's envs, policy and shared-memory writers (process or serial mode)."""
+
+    def __init__(self, args: WorkerArgs):
+        import tasks  # numpy + mujoco + the shim
+
+        self.args = args
+        self.id = args.worker_id
+        self.algo = importlib.import_module(args.algo_module)
+        self.ctl = SharedArrays.attach(args.control_handle)
+        self._words = self.ctl["worker"][self.id]
+        self._words[PID] = os.getpid()
+        if args.buffer_kind == "trajectory":
+            self.traj: TrajectoryBuffer | None = TrajectoryBuffer.attach(args.buffer_handle)
+            self.replay: ReplayBuffer | None = None
+        else:
+            self.traj, self.replay = None, ReplayBuffer.attach(args.buffer_handle)
+        self.weights = WeightReader(args.weights_handle)
+        self.task = tasks.make(args.task_name, args.envs_per_worker, args.worker_seed, dict(args.task_overrides))
+        self.spec = self.task.spec
+        self.m = args.envs_per_worker
+        self.rng = np.random.default_rng(np.random.SeedSequence([args.worker_seed, 0x5EED]))
+        self.obs, self.critic_obs = self.task.reset()
+        self.ep_return = np.zeros(self.m, np.float32)
+        self.ep_length = np.zeros(self.m, np.int32)
+        self.params: Any = None
+        self.version = -1
+        self.chunk_version = -1  # version that produced the previous chunk
+        self._extras_checked = False
+        self._last_parent_check = time.monotonic()
+        self._words[JAX] = int("jax" in sys.modules)
+        self._words[STATUS] = READY
+
+    # ---- control ------------------------------------------------------------------------------
+    def _check(self) -> None:
+        """Raises :class:`Stopped` when the pool stops us or the learner process is gone."""
+        if self.ctl["flags"][0]:
+            raise Stopped()
+        now = time.monotonic()
+        if now - self._last_parent_check > 1.0:
+            self._last_parent_check = now
+            self._words[HEARTBEAT] = time.monotonic_ns()
+            if self.args.parent_pid != os.getpid() and os.getppid() != self.args.parent_pid:
+                raise Stopped()
+
+    def _get_weights(self, block: bool) -> bool:
+        """Loads the weights for a new chunk; False if (non-blocking) they are not there yet."""
+        need = self.chunk_version + 1 if self.args.sync == "lockstep" else 0
+        if self.version >= need and self.args.sync == "async":
+            got = self.weights.poll()
+        elif block:
+            got = self.weights.read(min_version=need, timeout=self.args.wait_timeout, check=self._check)
+        else:
+            got = self.weights.poll() if self.weights.latest_version() >= need else None
+            if got is None and self.version < need:
+                return False
+        if got is not None:
+            self._set_weights(*got)
+        return self.version >= need
+
+    def _set_weights(self, tree: Any, version: int) -> None:
+        self.params, self.version = tree, version
+        self._words[W_READS] += 1
+        self._words[W_RETRIES] = self.weights.retries
+        self._words[VERSION] = version
+
+    # ---- one env step -------------------------------------------------------------------------
+    def _step(self, out: dict[str, np.ndarray]) -> None:
+        """Acts, steps the task and writes one transition per env into ``out`` ({field: [M, ...]})."""
+        self._check()
+        if self.args.sync == "async":
+            got = self.weights.poll()
+            if got is not None:
+                self._set_weights(*got)
+        noise = self.rng.standard_normal((self.m, self.spec.action_dim), dtype=np.float32)
+        action, extras = self.algo.act(self.params, self.obs, noise, False)
+        action = np.asarray(action, dtype=np.float32)
+        if not self._extras_checked:
+            self._check_extras(action, extras)
+        out["obs"][...] = self.obs
+        out["critic_obs"][...] = self.critic_obs
+        out["action"][...] = action
+        for name, value in extras.items():
+            out[name][...] = np.asarray(value)
+        res = self.task.step(action)
+        out["reward"][...] = res.reward
+        out["terminated"][...] = res.terminated
+        out["truncated"][...] = res.truncated
+        out["next_obs"][...] = res.next_obs
+        out["next_critic_obs"][...] = res.next_critic_obs
+        terms = out["reward_terms"]
+        for i, name in enumerate(self.spec.reward_terms):
+            terms[:, i] = res.reward_terms[name]
+        self.ep_return += res.reward
+        self.ep_length += 1
+        out["episode_return"][...] = self.ep_return
+        out["episode_length"][...] = self.ep_length
+        out["policy_version"][...] = self.version
+        self.obs, self.critic_obs = res.obs, res.critic_obs
+        # Monitoring counters (single-writer words; approximate reads are fine).
+        ctl, w = self.ctl, self.id
+        if self.spec.reward_terms:
+            ctl["term_sum"][w, : len(self.spec.reward_terms)] += terms.sum(axis=0, dtype=np.float64)
+        self._words[TERM_ROWS] += self.m
+        done = np.flatnonzero(np.logical_or(res.terminated, res.truncated))
+        if done.size:
+            window = ctl["ep_return"].shape[1]
+            n0 = int(self._words[EPISODES])
+            pos = (n0 + np.arange(done.size)) % window
+            ctl["ep_return"][w, pos[-window:]] = self.ep_return[done][-window:]
+            ctl["ep_length"][w, pos[-window:]] = self.ep_length[done][-window:]
+            self._words[EPISODES] = n0 + done.size
+            self.ep_return[done] = 0.0
+            self.ep_length[done] = 0
+        self._words[STEPS] += self.m
+
+    def _check_extras(self, action: np.ndarray, extras: dict) -> None:
+        want = set(self.algo.extras(self.spec.action_dim))
+        if set(extras) != want:
+            raise ValueError(f"{self.args.algo_module}.act returned extras {sorted(extras)}, declared {sorted(want)}")
+        if action.shape != (self.m, self.spec.action_dim):
+            raise ValueError(f"{self.args.algo_module}.act returned actions of shape {action.shape}, "
+                             f"expected {(self.m, self.spec.action_dim)}")
+        self._extras_checked = True
+
+    # ---- chunks -------------------------------------------------------------------------------
+    def run_chunk(self, block: bool = True) -> bool:
+        """Collects one chunk of ``T`` steps (a trajectory slot or T replay steps).
+
+        With ``block=False`` (serial mode) returns False instead of waiting when the weights it
+        needs are not published yet or no slot is free.
+        """
+        if not self._get_weights(block):
+            return False
+        t_len = self.args.horizon
+        if self.traj is not None:
+            if block:
+                slot = self.traj.acquire(self.id, timeout=self.args.wait_timeout, check=self._check)
+            else:
+                slot = self.traj.try_acquire(self.id)
+                if slot is None:
+                    return False
+            views = self.traj.slot(self.id, slot)
+            start_version = self.version
+            for t in range(t_len):
+                self._step({k: v[t] for k, v in views.items()})
+            self.traj.publish(self.id, slot)
+        else:
+            start_version = self.version
+            for _ in range(t_len):
+                _, rows = self.replay.rows(self.id)
+                self._step(rows)
+                self.replay.commit(self.id)
+        self.chunk_version = start_version if self.args.sync == "lockstep" else self.version
+        self._words[CHUNKS] += 1
+        return True
+
+    def run_steps(self, n: int) -> int:
+        """Replay mode, serial: up to ``n`` single env steps (no chunk wait); returns steps done."""
+        if self.replay is None:
+            raise RuntimeError("run_steps is for replay buffers")
+        done = 0
+        for _ in range(n):
+            if self.params is None or self.args.sync == "async":
+                got = self.weights.poll()
+                if got is not None:
+                    self._set_weights(*got)
+            if self.params is None:
+                break
+            _, rows = self.replay.rows(self.id)
+            self._step(rows)
+            self.replay.commit(self.id)
+            done += 1
+        return done
+
+    def run(self) -> None:
+        """Process mode: chunks until stopped."""
+        while True:
+            self.run_chunk(block=True)
+
+    def close(self) -> None:
+        for obj in (self.traj, self.replay, self.weights):
+            if obj is not None:
+                obj.close()
+        try:
+            self.task.close()
+        finally:
+            self.params = None
+            self.ctl.close()
+
+
+def _report_error(ctl: SharedArrays | None, worker_id: int, text: str) -> None:
+    if ctl is None:
+        return
+    data = text.encode("utf-8", "replace")[-(ERROR_BYTES - 1):]
+    err = ctl["error"][worker_id]
+    err[:] = 0
+    err[: len(data)] = np.frombuffer(data, np.uint8)
+    fence()
+    ctl["worker"][worker_id, STATUS] = FAILED
+
+
+def read_error(ctl: SharedArrays, worker_id: int) -> str:
+    raw = bytes(ctl["error"][worker_id])
+    return raw.split(b"\0", 1)[0].decode("utf-8", "replace")
+
+
+def worker_main(args: WorkerArgs) -> None:
+    """Entry point of a spawned worker process."""
+    # Ctrl-C goes to the whole process group: the learner handles it and stops us via the flag.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ctl = None
+    worker = None
+    try:
+        ctl = SharedArrays.attach(args.control_handle)
+        worker = Worker(args)
+        worker.run()
+    except Stopped:
+        if ctl is not None:
+            ctl["worker"][args.worker_id, STATUS] = STOPPED
+    except BaseException:
+        text = traceback.format_exc()
+        sys.stderr.write(f"[unilab worker {args.worker_id}] crashed:\n{text}")
+        sys.stderr.flush()
+        _report_error(ctl, args.worker_id, text)
+        raise SystemExit(1) from None
+    finally:
+        if worker is not None:
+            try:
+                worker.close()
+            except Exception:
+                pass
+        if ctl is not None:
+            ctl.close()
