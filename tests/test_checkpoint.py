@@ -8,7 +8,7 @@ import pytest
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
-from unilab_jax.checkpoint import CheckpointMismatchError, Checkpointer
+from unilab_jax.checkpoint import Checkpointer, CheckpointMismatchError
 
 
 def _state(sizes, seed=0):
