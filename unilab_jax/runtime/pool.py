@@ -22,7 +22,7 @@ module is hidden from multiprocessing so the children do not re-import the train
 would import jax into every worker and slow its start); workers import only the runtime, the task
 and the algorithm module. A dead worker is noticed while the learner waits (exit code checked every
 ``poll`` seconds) and raises :class:`WorkerDiedError` with the worker's traceback. ``close()``
-raises a shared stop flag, joins the workers (terminate/kill after a grace period) and unlinks every
+raises a shared stop flag, joins the workers (SIGKILL after a grace period) and unlinks every
 segment; it is idempotent and also runs from a ``weakref.finalize`` at exit.
 """
 
@@ -153,11 +153,7 @@ class _Resources:
         deadline = time.monotonic() + grace
         for p in self.procs:
             p.join(max(0.0, deadline - time.monotonic()))
-        for p in self.procs:
-            if p.is_alive():
-                p.terminate()
-        for p in self.procs:
-            p.join(2.0)
+        for p in self.procs:  # workers ignore SIGTERM (see worker_main): past the grace period, SIGKILL
             if p.is_alive():
                 p.kill()
                 p.join(2.0)
@@ -306,7 +302,7 @@ class WorkerPool:
         self._res.procs.append(p)
 
     def close(self, grace: float = 5.0) -> None:
-        """Stops the workers (within ``grace`` s, then terminate/kill), unlinks every segment."""
+        """Stops the workers (within ``grace`` s, then SIGKILL), unlinks every segment."""
         self._res.shutdown(grace)
         self._finalizer.detach()
 

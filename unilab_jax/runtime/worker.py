@@ -301,8 +301,11 @@ def read_error(ctl: SharedArrays, worker_id: int) -> str:
 
 def worker_main(args: WorkerArgs) -> None:
     """Entry point of a spawned worker process."""
-    # Ctrl-C goes to the whole process group: the learner handles it and stops us via the flag.
+    # Ctrl-C and `timeout`/`kill -TERM -<pgid>` reach the whole process group: the learner handles
+    # them (final checkpoint, then it stops us via the shared flag; close() escalates to SIGKILL after
+    # its grace period), and a worker whose learner is gone exits on its own.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     ctl = None
     worker = None
     try:
