@@ -21,6 +21,12 @@ from typing import Any
 from absl import app, flags
 from absl import logging as absl_logging
 
+# The learner's numpy work is small (statistics, evaluation); OpenBLAS threads spinning on it would
+# steal cores from the rollout workers. Set before numpy is first imported (nothing above imports it);
+# the user's own value wins.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 PLATFORMS = ("jax", "mlx")
 PROCESS_START = time.time()  # time-to-target clocks count from here (imports of jax etc. included)
 

@@ -149,15 +149,20 @@ class Trainer:
             prefetch = _Prefetcher(source.produce)
             t_last, steps_last = time.time(), counters["env_steps"]
             while counters["env_steps"] < run.total_steps and not self._stop.is_set():
+                t_wait = time.perf_counter()
                 batch, stats = prefetch.get()
+                t_update = time.perf_counter()
                 state, metrics = self.learner.update(state, batch)
+                scalars = {f"loss/{k}": float(v) for k, v in metrics.items()}  # waits for the update
+                t_publish = time.perf_counter()
                 counters["updates"] += 1
                 publish = source.advance(counters, stats)
                 if publish:
                     counters["version"] += 1
                     pool.publish(nets.to_numpy(self.learner.weights(state)), counters["version"])
                 now = time.time()
-                scalars = {f"loss/{k}": float(v) for k, v in metrics.items()}
+                scalars.update({"perf/learner_wait_s": t_update - t_wait, "perf/update_s": t_publish - t_update,
+                                "perf/publish_s": time.perf_counter() - t_publish})
                 scalars.update(stats["scalars"])
                 scalars.update(source.pool_scalars())
                 scalars.update({"perf/env_steps_per_s": (counters["env_steps"] - steps_last) / max(now - t_last, 1e-9),
@@ -290,9 +295,12 @@ class _TrajectorySource:
         self._pool, self._xp, self._terms = pool, xp, reward_terms
 
     def produce(self, stop: threading.Event) -> tuple[dict, dict]:
-        batch, _ = self._pool.collect(timeout=600.0)
+        batch, info = self._pool.collect(timeout=600.0)
+        t0 = time.perf_counter()
         out = {k: self._xp.from_numpy(batch[k]) for k in _TRAJECTORY_FIELDS if k in batch}
         stats = _batch_stats(batch, self._terms)
+        stats["scalars"].update({"perf/collect_wait_s": info["wait_s"], "perf/collect_copy_s": info["copy_s"],
+                                 "perf/to_device_s": time.perf_counter() - t0})
         stats["policy_version"] = np.asarray(batch["policy_version"])
         stats["transitions"] = int(batch["reward"].size)
         return out, stats
@@ -305,7 +313,7 @@ class _TrajectorySource:
         return True  # every update publishes
 
     def pool_scalars(self) -> dict[str, float]:
-        return {}
+        return _worker_scalars(self._pool.stats())
 
 
 class _ReplaySource:
@@ -349,12 +357,19 @@ class _ReplaySource:
 
     def pool_scalars(self) -> dict[str, float]:
         st = self._pool.stats()
-        out = {"replay/size": float(st.get("replay_size", 0)), "perf/worker_env_steps_per_s": st["env_steps_per_s"]}
+        out = {"replay/size": float(st.get("replay_size", 0)), **_worker_scalars(st)}
         if st["recent_episode_returns"].size:
             out["episode/return"] = st["episode_return_mean"]
             out["episode/length"] = st["episode_length_mean"]
         out.update({f"reward/{k}": v for k, v in st["reward_terms"].items()})
         return out
+
+
+def _worker_scalars(stats: dict[str, Any]) -> dict[str, float]:
+    """Worker throughput and where worker time goes (act / task / write / wait fractions)."""
+    out = {"perf/worker_env_steps_per_s": stats["env_steps_per_s"]}
+    out.update({f"perf/worker_{k}_fraction": v for k, v in stats["worker_time_fraction"].items()})
+    return out
 
 
 def _batch_stats(batch: dict[str, np.ndarray], reward_terms: tuple[str, ...]) -> dict[str, Any]:

@@ -54,6 +54,7 @@ from unilab_jax.runtime.worker import (
     STATUS,
     STEPS,
     TERM_ROWS,
+    TIMING,
     VERSION,
     W_RETRIES,
     Worker,
@@ -532,6 +533,9 @@ class WorkerPool:
             "worker_pids": words[:, PID].tolist(),
             "workers_with_jax": int(words[:, JAX].sum()),
         }
+        timing = self._ctl["timing"].sum(axis=0)
+        total = max(float(timing.sum()), 1e-9)
+        out["worker_time_fraction"] = {name: float(timing[i] / total) for i, name in enumerate(TIMING)}
         if isinstance(self.buffer, ReplayBuffer):
             out["replay_size"] = self.buffer.size()
             out["replay_resampled"] = self.buffer.resampled

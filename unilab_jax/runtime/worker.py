@@ -45,6 +45,12 @@ ERROR_BYTES = 4096
 EPISODE_WINDOW = 64
 
 
+# Where a worker's wall time goes (cumulative seconds in ctl["timing"]): the profile behind every
+# throughput number (policy inference, MuJoCo + task math, writing transitions, waiting for weights
+# or a free slot).
+TIMING = ("act", "task", "write", "wait")
+
+
 def control_layout(num_workers: int, n_terms: int, episode_window: int = EPISODE_WINDOW) -> dict:
     return {
         "flags": ((16,), np.int64),  # [0]: stop
@@ -52,6 +58,7 @@ def control_layout(num_workers: int, n_terms: int, episode_window: int = EPISODE
         "ep_return": ((num_workers, episode_window), np.float32),
         "ep_length": ((num_workers, episode_window), np.int32),
         "term_sum": ((num_workers, max(n_terms, 1)), np.float64),
+        "timing": ((num_workers, len(TIMING)), np.float64),  # seconds spent per phase, see TIMING
         "error": ((num_workers, ERROR_BYTES), np.uint8),
     }
 
@@ -61,6 +68,7 @@ def init_control(ctl: SharedArrays) -> None:
     ctl["worker"][:] = 0
     ctl["worker"][:, VERSION] = -1
     ctl["term_sum"][:] = 0.0
+    ctl["timing"][:] = 0.0
     ctl["error"][:] = 0
 
 
@@ -103,6 +111,7 @@ class Worker:
         self.algo = importlib.import_module(args.algo_module)
         self.ctl = SharedArrays.attach(args.control_handle)
         self._words = self.ctl["worker"][self.id]
+        self._timing = self.ctl["timing"][self.id]
         self._words[PID] = os.getpid()
         if args.buffer_kind == "trajectory":
             self.traj: TrajectoryBuffer | None = TrajectoryBuffer.attach(args.buffer_handle)
@@ -166,17 +175,21 @@ class Worker:
             got = self.weights.poll()
             if got is not None:
                 self._set_weights(*got)
+        t0 = time.perf_counter()
         noise = self.rng.standard_normal((self.m, self.spec.action_dim), dtype=np.float32)
         action, extras = self.algo.act(self.params, self.obs, noise, False)
         action = np.asarray(action, dtype=np.float32)
         if not self._extras_checked:
             self._check_extras(action, extras)
+        t1 = time.perf_counter()
         out["obs"][...] = self.obs
         out["critic_obs"][...] = self.critic_obs
         out["action"][...] = action
         for name, value in extras.items():
             out[name][...] = np.asarray(value)
+        t2 = time.perf_counter()
         res = self.task.step(action)
+        t3 = time.perf_counter()
         out["reward"][...] = res.reward
         out["terminated"][...] = res.terminated
         out["truncated"][...] = res.truncated
@@ -207,6 +220,10 @@ class Worker:
             self.ep_return[done] = 0.0
             self.ep_length[done] = 0
         self._words[STEPS] += self.m
+        timing = self._timing
+        timing[0] += t1 - t0
+        timing[1] += t3 - t2
+        timing[2] += (t2 - t1) + (time.perf_counter() - t3)
 
     def _check_extras(self, action: np.ndarray, extras: dict) -> None:
         want = set(self.algo.extras(self.spec.action_dim))
@@ -224,6 +241,7 @@ class Worker:
         With ``block=False`` (serial mode) returns False instead of waiting when the weights it
         needs are not published yet or no slot is free.
         """
+        t_wait = time.perf_counter()
         if not self._get_weights(block):
             return False
         t_len = self.args.horizon
@@ -234,6 +252,7 @@ class Worker:
                 slot = self.traj.try_acquire(self.id)
                 if slot is None:
                     return False
+            self._timing[3] += time.perf_counter() - t_wait
             views = self.traj.slot(self.id, slot)
             start_version = self.version
             for t in range(t_len):
