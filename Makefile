@@ -22,7 +22,7 @@ lint: $(STAMP)
 	$(PY) -m ruff check .
 
 train: $(STAMP)
-	$(PY) experiments/ppo_cartpole.py --logdir=runs/ppo_cartpole
+	$(PY) experiments/ppo_cartpole.py --logdir=runs/ppo_cartpole --eval_every=20000
 
 bench: $(STAMP)
 	$(PY) bench/throughput.py
