@@ -1,4 +1,6 @@
 """Imports every built-in task module so each registers itself."""
 
 import tasks.cartpole  # noqa: F401
+import tasks.g1_walk  # noqa: F401
 import tasks.go1_joystick  # noqa: F401
+import tasks.go2_joystick  # noqa: F401

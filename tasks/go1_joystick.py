@@ -43,6 +43,8 @@ with ``scene_mjx_feetonly_flat_terrain.xml`` and ``randomize.py``), rebuilt on t
   ``dr_pose_offset_on_targets=False`` restores the no-op.
 * Unstable envs (MuJoCo divergence warnings or a non-finite state/observation) are truncated
   and reset; their outputs are zeroed rather than NaN and counted in ``self.unstable_count``.
+* For velocity-tracking metrics (``tasks.walking.walking_metric``): ``self.command [M, 3]`` is the
+  command in force and ``self.base_velocity() [M, 3]`` the measured body-frame (vx, vy, yaw rate).
 
 Other choices: ``integrator`` follows DESIGN.md (Euler; with no joint damping Euler is plain
 explicit Euler); Playground's newest XML says ``implicitfast``, available as an override. With
@@ -167,31 +169,40 @@ def reward_scales(config: Go1JoystickConfig) -> dict[str, float]:
 # --------------------------------------------------------------------------------------------------
 # Model
 # --------------------------------------------------------------------------------------------------
-def load_go1_spec() -> mujoco.MjSpec:
-    """Menagerie's Go1 scene as an editable MjSpec (``MENAGERIE_ROOT`` for offline copies)."""
+def load_menagerie_spec(robot: str, variant: str = "scene") -> mujoco.MjSpec:
+    """A Menagerie robot's ``variant`` XML as an editable MjSpec (``MENAGERIE_ROOT`` for offline copies)."""
     import mujoco_menagerie
 
     root = os.environ.get("MENAGERIE_ROOT")
     if root and not os.path.isdir(root):
         raise FileNotFoundError(f"MENAGERIE_ROOT={root!r} is not a directory")
-    return mujoco_menagerie.get("unitree_go1").spec("scene")
+    return mujoco_menagerie.get(robot).spec(variant)
 
 
-def build_spec(config: Go1JoystickConfig) -> mujoco.MjSpec:
-    """Playground's feet-only Go1 flat-terrain model, made from Menagerie's scene with MjSpec edits."""
-    spec = load_go1_spec()
-    opt = spec.option
-    opt.timestep = config.sim_dt
-    opt.iterations = config.solver_iterations
-    opt.ls_iterations = config.ls_iterations
+def load_go1_spec() -> mujoco.MjSpec:
+    """Menagerie's Go1 scene as an editable MjSpec (``MENAGERIE_ROOT`` for offline copies)."""
+    return load_menagerie_spec("unitree_go1")
+
+
+def set_solver(spec: mujoco.MjSpec, config) -> None:
+    """Timestep ``config.sim_dt``, ``config.integrator`` ("euler" or "implicitfast"), Newton with
+    ``config.solver_iterations`` / ``config.ls_iterations``, pyramidal cone, impratio 1."""
     integrators = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
                    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
     if config.integrator not in integrators:
         raise ValueError(f"integrator {config.integrator!r}: choose one of {sorted(integrators)}")
+    opt = spec.option
+    opt.timestep = config.sim_dt
+    opt.iterations = config.solver_iterations
+    opt.ls_iterations = config.ls_iterations
     opt.integrator = integrators[config.integrator]
     opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
     opt.impratio = 1.0
-    # Visual-only content: meshes, textures, materials (no effect on physics; bodies have inertials).
+
+
+def strip_visuals(spec: mujoco.MjSpec) -> None:
+    """Deletes mesh geoms, meshes, textures and materials (no effect on physics when every body has an
+    explicit inertial); keeps per-env model copies for domain randomisation small."""
     for g in list(spec.geoms):
         if g.type == mujoco.mjtGeom.mjGEOM_MESH:
             spec.delete(g)
@@ -199,18 +210,41 @@ def build_spec(config: Go1JoystickConfig) -> mujoco.MjSpec:
             g.material = ""
     for item in list(spec.meshes) + list(spec.textures) + list(spec.materials):
         spec.delete(item)
-    # Feet-only contacts.
+
+
+def feet_only_contacts(spec: mujoco.MjSpec, feet, floor: str = "floor") -> None:
+    """Only the ``feet`` geoms (MjsGeom objects) collide, and only with the ``floor`` geom; margins 0.
+
+    floor: contype 1 / conaffinity 0; feet: contype 0 / conaffinity 1 (so feet never touch each other);
+    every other geom: contype = conaffinity = 0.
+    """
+    feet = list(feet)  # keeps the wrappers alive: the identity test below relies on pybind's instance registry
     for g in spec.geoms:
         g.margin = 0.0
-        if g.name == "floor":
-            g.contype, g.conaffinity, g.priority, g.condim = 1, 0, 1, 3
-            g.friction = [0.6, g.friction[1], g.friction[2]]
-        elif g.name in FEET:
-            g.contype, g.conaffinity, g.priority, g.condim = 0, 1, 0, 1
-            g.solimp = [0.015, 1.0, 0.023, g.solimp[3], g.solimp[4]]
-            g.friction = [0.8, 0.02, 0.01]
+        if g.name == floor:
+            g.contype, g.conaffinity = 1, 0
+        elif any(g is f for f in feet):
+            g.contype, g.conaffinity = 0, 1
         else:
             g.contype, g.conaffinity = 0, 0
+
+
+def build_spec(config: Go1JoystickConfig) -> mujoco.MjSpec:
+    """Playground's feet-only Go1 flat-terrain model, made from Menagerie's scene with MjSpec edits."""
+    spec = load_go1_spec()
+    set_solver(spec, config)
+    # Visual-only content: meshes, textures, materials (no effect on physics; bodies have inertials).
+    strip_visuals(spec)
+    # Feet-only contacts, with Playground's contact parameters.
+    feet_only_contacts(spec, [spec.geom(f) for f in FEET])
+    floor = spec.geom("floor")
+    floor.priority, floor.condim = 1, 3
+    floor.friction = [0.6, floor.friction[1], floor.friction[2]]
+    for f in FEET:
+        g = spec.geom(f)
+        g.priority, g.condim = 0, 1
+        g.solimp = [0.015, 1.0, 0.023, g.solimp[3], g.solimp[4]]
+        g.friction = [0.8, 0.02, 0.01]
     # No joint damping; PD through the position actuators.
     for j in spec.joints:
         if j.type != mujoco.mjtJoint.mjJNT_FREE:
@@ -474,6 +508,53 @@ def sample_command(old, uniform, keep_nonzero, replace):
 # --------------------------------------------------------------------------------------------------
 # The numpy task
 # --------------------------------------------------------------------------------------------------
+def random_base_states(init_qpos, nv: int, n: int, rng: np.random.Generator, xy: float, yaw: float,
+                       base_vel: float) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` reset states around ``init_qpos`` (free joint first): base xy + U(+-xy), yaw U(+-yaw) composed
+    with the initial orientation, base linear/angular velocity U(+-base_vel), joint velocities 0."""
+    qpos = np.tile(init_qpos, (n, 1))
+    qpos[:, 0:2] += rng.uniform(-xy, xy, size=(n, 2))
+    yaws = rng.uniform(-yaw, yaw, size=n)
+    qyaw = np.stack([np.cos(yaws / 2), np.zeros(n), np.zeros(n), np.sin(yaws / 2)], axis=-1)
+    qpos[:, 3:7] = quat_mul(qpos[:, 3:7], qyaw)
+    qvel = np.zeros((n, nv))
+    qvel[:, 0:6] = rng.uniform(-base_vel, base_vel, size=(n, 6))
+    return qpos, qvel
+
+
+def finish_step(next_obs, next_cobs, reward, scaled, done, unstable, at_limit, reset_and_observe):
+    """The end of a task step shared by the locomotion tasks: instability masking, end flags, auto-reset.
+
+    ``unstable [M]`` (MuJoCo divergence) is widened by any non-finite observation or reward; those envs are
+    truncated with zeroed outputs. ``done [M]`` terminates the others; ``at_limit [M]`` truncates them.
+    ``reset_and_observe(idx)`` resets envs ``idx`` and returns the whole batch's (obs, critic_obs), of
+    which rows ``idx`` replace the successors in ``StepOut.obs``. Returns (StepOut, number of unstable envs).
+    """
+    unstable = unstable | ~(
+        np.isfinite(next_obs).all(axis=1) & np.isfinite(next_cobs).all(axis=1) & np.isfinite(reward)
+    )
+    n_unstable = int(unstable.sum())
+    if n_unstable:
+        next_obs[unstable] = 0.0
+        next_cobs[unstable] = 0.0
+        reward = np.where(unstable, 0.0, reward)
+        scaled = {k: np.where(unstable, 0.0, v) for k, v in scaled.items()}
+    term = done & ~unstable
+    trunc = (at_limit | unstable) & ~term
+    next_obs = next_obs.astype(np.float32)
+    next_cobs = next_cobs.astype(np.float32)
+    obs, cobs = next_obs, next_cobs
+    ended = np.flatnonzero(term | trunc)
+    if ended.size:
+        o2, c2 = reset_and_observe(ended)
+        obs, cobs = next_obs.copy(), next_cobs.copy()
+        obs[ended] = o2[ended]
+        cobs[ended] = c2[ended]
+    out = base.StepOut(obs, cobs, next_obs, next_cobs, reward.astype(np.float32), term, trunc,
+                       {k: v.astype(np.float32) for k, v in scaled.items()})
+    return out, n_unstable
+
+
 class Go1JoystickFlat(base.Task):
     def __init__(self, config: Go1JoystickConfig, num_envs: int, seed: int):
         super().__init__(config, num_envs, seed)
@@ -607,13 +688,8 @@ class Go1JoystickFlat(base.Task):
 
     def _reset_envs(self, idx: np.ndarray) -> None:
         c, r, n = self.config, self._rng, idx.size
-        qpos = np.tile(self.init_qpos, (n, 1))
-        qpos[:, 0:2] += r.uniform(-c.reset_xy, c.reset_xy, size=(n, 2))
-        yaw = r.uniform(-c.reset_yaw, c.reset_yaw, size=n)
-        qyaw = np.stack([np.cos(yaw / 2), np.zeros(n), np.zeros(n), np.sin(yaw / 2)], axis=-1)
-        qpos[:, 3:7] = quat_mul(qpos[:, 3:7], qyaw)
-        qvel = np.zeros((n, self.model.nv))
-        qvel[:, 0:6] = r.uniform(-c.reset_base_vel, c.reset_base_vel, size=(n, 6))
+        qpos, qvel = random_base_states(self.init_qpos, self.model.nv, n, r, c.reset_xy, c.reset_yaw,
+                                        c.reset_base_vel)
         ctrl = self.default_pose + self._pose_offset(idx)
         self.sim.set_state(idx, qpos, qvel, ctrl=ctrl)
         self.steps_until_next_cmd[idx] = self._exp_steps(n)
@@ -673,33 +749,18 @@ class Go1JoystickFlat(base.Task):
         self.last_contact = contact
         self.swing_peak = swing_peak * ~contact
         self.steps += 1
-        # Instability: warnings, or anything non-finite -> truncate, zero the outputs, reset.
-        unstable = unstable | ~(
-            np.isfinite(next_obs).all(axis=1) & np.isfinite(next_cobs).all(axis=1) & np.isfinite(reward)
-        )
-        if unstable.any():
-            self.unstable_count += int(unstable.sum())
-            next_obs[unstable] = 0.0
-            next_cobs[unstable] = 0.0
-            reward = np.where(unstable, 0.0, reward)
-            scaled = {k: np.where(unstable, 0.0, v) for k, v in scaled.items()}
-        term = done & ~unstable
-        trunc = ((self.steps >= c.episode_length) | unstable) & ~term
-        next_obs = next_obs.astype(np.float32)
-        next_cobs = next_cobs.astype(np.float32)
-        obs, cobs = next_obs, next_cobs
-        ended = np.flatnonzero(term | trunc)
-        if ended.size:
-            self._reset_envs(ended)
-            o2, c2 = self._observe(self._sensors(), self.last_act, self.command, self.last_contact,
-                                   self.feet_air_time)
-            obs, cobs = next_obs.copy(), next_cobs.copy()
-            obs[ended] = o2[ended]
-            cobs[ended] = c2[ended]
-        return base.StepOut(
-            obs, cobs, next_obs, next_cobs, reward.astype(np.float32), term, trunc,
-            {k: v.astype(np.float32) for k, v in scaled.items()},
-        )
+        out, n_unstable = finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
+                                      self.steps >= c.episode_length, self._reset_and_observe)
+        self.unstable_count += n_unstable
+        return out
+
+    def _reset_and_observe(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._reset_envs(idx)
+        return self._observe(self._sensors(), self.last_act, self.command, self.last_contact, self.feet_air_time)
+
+    def base_velocity(self) -> np.ndarray:
+        """[M, 3] measured (vx, vy) in the body frame and yaw rate: what ``command`` asks for (walking metric)."""
+        return np.concatenate([self._s("local_linvel")[:, :2], self._s("gyro")[:, 2:3]], axis=1)
 
     def close(self) -> None:
         self.sim.close()

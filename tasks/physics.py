@@ -168,6 +168,19 @@ class BatchedSim:
             self.warmstart[i] = 0.0
             d.qacc_warmstart[:] = 0.0
 
+    def add_velocity(self, idx: np.ndarray, dqvel: np.ndarray) -> None:
+        """Adds ``dqvel [len(idx), nv]`` to the velocities of envs ``idx`` (an impulse such as a push).
+
+        Time, positions and the solver warm start are kept; ``sensordata`` is refreshed by the next step.
+        """
+        idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+        if idx.size == 0:
+            return
+        self.qvel[idx] += np.asarray(dqvel, dtype=np.float64).reshape(idx.size, self.nv)
+        if self.engine == "step":
+            for i in idx:
+                self.datas[i].qvel[:] = self.qvel[i]
+
     def reset_all_to(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.set_state(np.arange(self.num_envs), qpos, qvel)
 

@@ -1,0 +1,475 @@
+"""Shared machinery of the gait-phase walking tasks (Go2, G1) and a walking metric for every locomotion task.
+
+Two parts:
+
+* ``WalkingTask``: the batched CPU task that ``go2_joystick_flat`` and ``g1_walk_flat`` specialise. It owns
+  what the two have in common: position servos with a per-joint PD (``position_servos``: Kp on the
+  actuator, Kd as joint damping, torque limits taken from the robot's own motor ranges), feet-only
+  contacts and the sensors the tasks read (``add_walking_sensors``), a clock-driven gait phase per foot,
+  the observation layout (gyro, projected gravity, joint pos - default, joint vel, last action,
+  command, gait phase), one velocity command per episode, tilt/height termination, base-velocity
+  pushes, per-env domain-randomised models with their parameters in ``extrinsics``, and the
+  instability handling shared with Go1 (``go1_joystick.finish_step``). Subclasses build the model and
+  define the reward terms and the domain randomisation.
+* ``walking_metric``: runs a deterministic policy on a fresh task and reports velocity-tracking error,
+  yaw-rate error and fall rate -- numbers that do not depend on any task's reward scaling. It needs
+  the task to expose ``task.command [M, 3]`` (vx, vy, yaw rate asked for) and ``task.base_velocity()
+  [M, 3]`` (the measured body-frame vx, vy and yaw rate); Go1, Go2 and G1 do.
+
+The per-step math is module-level pure functions on batched arrays written against the shim, so an MJX
+variant can reuse it with jax arrays.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from tasks import base
+from tasks import go1_joystick as go1
+from tasks.physics import BatchedSim
+from unilab_jax import xp as shim
+
+
+@dataclasses.dataclass(frozen=True)
+class WalkingConfig:
+    """Fields every walking task has; each task subclasses it with its own defaults and reward scales."""
+
+    episode_length: int = 1000
+    ctrl_dt: float = 0.02
+    sim_dt: float = 0.01
+    action_scale: float = 0.4
+    action_clip: float = 0.0  # > 0: actions are clipped to +-action_clip; 0: not clipped
+    integrator: str = "euler"
+    solver_iterations: int = 10  # Newton stops early when converged; fewer (<= 4) diverged at sim_dt 0.01
+    ls_iterations: int = 10
+    # Gait clock: phase_f(t) = (gait_frequency * t + gait_offsets[f]) mod 1; stance while phase < stance_fraction.
+    gait_frequency: float = 2.0
+    gait_offsets: tuple[float, ...] = (0.0, 0.5, 0.5, 0.0)
+    stance_fraction: float = 0.5
+    # Observation noise: U(-1, 1) * noise_level * scale.
+    noise_level: float = 1.0
+    noise_gyro: float = 0.0
+    noise_gravity: float = 0.0
+    noise_joint_pos: float = 0.01
+    noise_joint_vel: float = 0.1
+    # Commands (vx, vy, yaw rate) ~ U(command_low, command_high), one per episode.
+    command_low: tuple[float, float, float] = (-0.6, -0.4, -0.8)
+    command_high: tuple[float, float, float] = (1.0, 0.4, 0.8)
+    # Reset and termination.
+    reset_xy: float = 0.5
+    reset_yaw: float = math.pi
+    reset_base_vel: float = 0.5
+    max_tilt_deg: float = 60.0
+    min_base_height: float = 0.0  # > 0: terminate when the base is lower
+    # Reward kernels.
+    tracking_sigma: float = 0.4
+    base_height_target: float = 0.3
+    swing_height_target: float = 0.1
+    swing_height_sigma: float = 0.01
+    # Pushes: every push_interval_s of episode time the base velocity gets + U(+-push_vel) (0: none).
+    push_interval_s: float = 15.0
+    push_vel: tuple[float, float, float] = (1.0, 1.0, 0.5)
+    domain_randomization: bool = True
+    physics_engine: str = "rollout"  # "rollout" or "step" (tasks/physics.py)
+    sensors_every_substep: bool = False
+
+
+def reward_scales(config: Any, terms: Sequence[str]) -> dict[str, float]:
+    return {name: float(getattr(config, f"scale_{name}")) for name in terms}
+
+
+# --------------------------------------------------------------------------------------------------
+# Model helpers (MjSpec edits)
+# --------------------------------------------------------------------------------------------------
+def position_servos(spec: mujoco.MjSpec, kp: Sequence[float], kd: Sequence[float]) -> np.ndarray:
+    """Turns the robot's torque motors into PD position servos; returns their torque limits [nu].
+
+    Actuator i (spec order) becomes ``tau = clip(kp[i] * (ctrl - q), +-limit)`` with ``limit`` the motor's
+    own ``ctrlrange`` (its torque range); the derivative part ``-kd[i] * qdot`` is the joint's damping, so
+    the Euler integrator treats it implicitly (stable at the tasks' 5-10 ms steps) -- as UniLab sets Kd.
+    ``ctrl`` (the joint target) is left unlimited.
+    """
+    limits = []
+    for i, a in enumerate(spec.actuators):
+        limit = float(np.max(np.abs(a.ctrlrange)))
+        if limit <= 0.0:
+            raise ValueError(f"actuator {a.name!r} has no torque range to take the limit from")
+        limits.append(limit)
+        a.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        a.gainprm[0] = kp[i]
+        a.biasprm[0], a.biasprm[1], a.biasprm[2] = 0.0, -kp[i], 0.0
+        a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        a.forcerange = [-limit, limit]
+        spec.joint(a.target).damping = np.full_like(np.asarray(spec.joint(a.target).damping), kd[i])
+    return np.array(limits)
+
+
+def add_walking_sensors(spec: mujoco.MjSpec, imu_site: str, feet: Sequence[tuple[str, Any, str, Any, str]],
+                        floor: str = "floor") -> None:
+    """The sensors ``WalkingTask`` reads: gyro / local_linvel / orientation at ``imu_site``; per foot
+    ``(name, pos objtype, pos objname, contact objtype, contact objname)``: ``{name}_pos``,
+    ``{name}_vel`` (world frame) and ``{name}_contact`` (1 while touching ``floor``); and
+    ``{actuator}_force`` per actuator."""
+    S, Ob = mujoco.mjtSensor, mujoco.mjtObj
+
+    def add(name, type_, objtype=Ob.mjOBJ_SITE, objname=imu_site, **kw):
+        spec.add_sensor(name=name, type=type_, objtype=objtype, objname=objname, **kw)
+
+    add("gyro", S.mjSENS_GYRO)
+    add("local_linvel", S.mjSENS_VELOCIMETER)
+    add("orientation", S.mjSENS_FRAMEQUAT)
+    for name, pos_type, pos_name, contact_type, contact_name in feet:
+        add(f"{name}_pos", S.mjSENS_FRAMEPOS, pos_type, pos_name)
+        add(f"{name}_vel", S.mjSENS_FRAMELINVEL, pos_type, pos_name)
+        # data="found", reduce="mindist", num=1: 1 if the foot touches the floor.
+        add(f"{name}_contact", S.mjSENS_CONTACT, contact_type, contact_name, reftype=Ob.mjOBJ_GEOM,
+            refname=floor, intprm=[1, 1, 1])
+    for a in spec.actuators:
+        add(f"{a.name}_force", S.mjSENS_ACTUATORFRC, Ob.mjOBJ_ACTUATOR, a.name)
+
+
+def standing_height(model: mujoco.MjModel, qpos: np.ndarray, foot_geoms: Sequence[int]) -> float:
+    """Base height at which the lowest point of the (sphere) ``foot_geoms`` touches z = 0 in pose ``qpos``."""
+    d = mujoco.MjData(model)
+    d.qpos[:] = qpos
+    d.qpos[2] = 0.0
+    mujoco.mj_kinematics(model, d)
+    ids = np.asarray(foot_geoms)
+    return float(-np.min(d.geom_xpos[ids, 2] - model.geom_size[ids, 0]))
+
+
+# --------------------------------------------------------------------------------------------------
+# Task math on the shim. Shapes: [M, ...] batched over envs; a feet axis F in the task's foot order.
+# --------------------------------------------------------------------------------------------------
+def gait_phase(t, frequency: float, offsets):
+    """[M, F] phase in [0, 1) of each foot at episode time ``t [M]``: (frequency * t + offset) mod 1."""
+    xp = shim.namespace(t)
+    return xp.remainder(t[:, None] * frequency + offsets, 1.0)
+
+
+def phase_features(phase):
+    """[M, 2K] (sin 2 pi phase_k, cos 2 pi phase_k) interleaved, for phases ``[M, K]``."""
+    xp = shim.namespace(phase)
+    ang = 2.0 * math.pi * phase
+    return xp.reshape(xp.stack([xp.sin(ang), xp.cos(ang)], axis=-1), (phase.shape[0], 2 * phase.shape[1]))
+
+
+def stance_mask(phase, stance_fraction: float):
+    """[M, F] bool: the gait clock puts the foot in stance (phase < stance_fraction)."""
+    return phase < stance_fraction
+
+
+def cost_base_height(base_z, target: float):
+    return shim.namespace(base_z).square(base_z - target)
+
+
+def cost_pose_l1(joint_pos, default_pose, weight):
+    """Weighted L1 deviation from the default pose, sum_j w_j |q_j - q0_j|."""
+    xp = shim.namespace(joint_pos)
+    return xp.sum(xp.abs(joint_pos - default_pose) * weight, axis=-1)
+
+
+def reward_contact_phase(contact, stance):
+    """Number of feet whose contact matches the gait clock (touching in stance, lifted in swing)."""
+    xp = shim.namespace(contact)
+    return xp.sum(xp.where(contact == stance, 1.0, 0.0), axis=-1)
+
+
+def reward_swing_height(feet_h, stance, target: float, sigma: float):
+    """sum over swinging feet of exp(-(h - target)^2 / sigma); ``feet_h [M, F]`` sole heights."""
+    xp = shim.namespace(feet_h)
+    k = xp.exp(-xp.square(feet_h - target) / sigma)
+    return xp.sum(k * xp.astype(~stance, k.dtype), axis=-1)
+
+
+def terminated(gravity, base_z, max_tilt_deg: float, min_base_height: float):
+    """[M] bool: tilt (angle between body z and world z) above ``max_tilt_deg``, or base below the minimum.
+
+    ``gravity`` is the projected gravity (body frame), so cos(tilt) = -gravity_z.
+    """
+    return (-gravity[:, 2] < math.cos(math.radians(max_tilt_deg))) | (base_z < min_base_height)
+
+
+def actor_obs(gyro, gravity, joint_pos, joint_vel, last_act, command, phase_feat, default_pose, noise):
+    """Actor observation [gyro 3, gravity 3, q - q0 n, qdot n, last action, command 3, phase features].
+
+    ``noise [M, 6 + 2n]`` (U(-1, 1) draws times the scales) is added to gyro, gravity, q and qdot.
+    """
+    xp = shim.namespace(gyro, gravity, joint_pos, joint_vel, last_act, command, phase_feat, noise)
+    n = joint_pos.shape[1]
+    noisy = xp.concat([gyro, gravity, joint_pos - default_pose, joint_vel], axis=-1) + noise
+    return xp.concat([noisy[:, : 6 + 2 * n], last_act, command, phase_feat], axis=-1)
+
+
+# --------------------------------------------------------------------------------------------------
+# The numpy task
+# --------------------------------------------------------------------------------------------------
+class WalkingTask(base.Task):
+    """Batched gait-phase walking task. Subclasses define (class attributes and hooks):
+
+    ``NAME``, ``REWARD_TERMS``; ``FEET`` (sensor name prefixes, the foot order of ``gait_offsets``);
+    ``build_spec(config) -> MjSpec`` (robot, servos, contacts, ``add_walking_sensors``);
+    ``home_qpos(model) -> [nq]`` (reset pose; its actuated joints are the default pose);
+    ``foot_geoms(model)`` (sphere geoms for the standing height) and ``sole_offsets(model) [F]`` (foot
+    sensor height above the sole); ``policy_actuators(model)`` (indices the action drives; the rest hold
+    their default); ``reward_terms(s, a, done) -> {name: [M]}``; ``critic_extra(s)``; ``sample_dr()`` and
+    ``randomize_model(model, i)`` for domain randomisation.
+    """
+
+    NAME: str = ""
+    REWARD_TERMS: tuple[str, ...] = ()
+    FEET: tuple[str, ...] = ()
+
+    def __init__(self, config: WalkingConfig, num_envs: int, seed: int):
+        super().__init__(config, num_envs, seed)
+        c = config
+        nsub = round(c.ctrl_dt / c.sim_dt)
+        if nsub < 1 or abs(nsub * c.sim_dt - c.ctrl_dt) > 1e-9:
+            raise ValueError(f"ctrl_dt {c.ctrl_dt} must be a multiple of sim_dt {c.sim_dt}")
+        if len(c.gait_offsets) != len(self.FEET):
+            raise ValueError(f"gait_offsets needs one offset per foot {self.FEET}, got {c.gait_offsets}")
+        self.dt = c.ctrl_dt
+        self.model = self.build_spec(c).compile()
+        m, M = self.model, self.num_envs
+        self._rng = np.random.Generator(np.random.Philox(self.seed))
+        # Joints: the actuated ones (servo targets) and the subset the policy drives.
+        jnt = m.actuator_trnid[:, 0]
+        self._act_qadr, self._act_vadr = m.jnt_qposadr[jnt], m.jnt_dofadr[jnt]
+        self.policy_idx = np.asarray(self.policy_actuators(m), dtype=np.int64)
+        self._qadr, self._vadr = self._act_qadr[self.policy_idx], self._act_vadr[self.policy_idx]
+        self.init_qpos = np.array(self.home_qpos(m), dtype=np.float64)
+        self.init_qpos[2] = standing_height(m, self.init_qpos, self.foot_geoms(m))
+        self.sole_offset = np.asarray(self.sole_offsets(m), dtype=np.float64)
+        self.default_ctrl = self.init_qpos[self._act_qadr].copy()
+        self.default_pose = self.default_ctrl[self.policy_idx].copy()
+        self.gait_offsets = np.array(c.gait_offsets, dtype=np.float64)
+        _, first = np.unique(self.gait_offsets, return_index=True)
+        self.phase_groups = np.sort(first)  # one foot per distinct phase (their sin/cos is observed)
+        self._sensor = {m.sensor(i).name: (m.sensor_adr[i], m.sensor_dim[i]) for i in range(m.nsensor)}
+        self._force_adr = self._sensor[f"{m.actuator(0).name}_force"][0]
+        n = self.policy_idx.size
+        self._noise_scale = c.noise_level * np.concatenate(
+            [np.full(3, c.noise_gyro), np.full(3, c.noise_gravity), np.full(n, c.noise_joint_pos),
+             np.full(n, c.noise_joint_vel)]
+        )
+        self.scales = reward_scales(c, self.REWARD_TERMS)
+        self._cmd_low, self._cmd_high = np.array(c.command_low), np.array(c.command_high)
+        self._push_every = round(c.push_interval_s / self.dt) if c.push_interval_s > 0 else 0
+        # Domain randomisation: per-env parameters (self.dr, flattened in self.extrinsics) and models.
+        self.dr = self.sample_dr()
+        self.extrinsics_layout = tuple((k, self.dr[k].shape[1]) for k in sorted(self.dr))
+        self.extrinsics = np.concatenate([self.dr[k] for k in sorted(self.dr)], axis=1).astype(np.float32)
+        models = None
+        if c.domain_randomization:
+            models = []
+            for i in range(M):
+                mi = copy.copy(m)
+                self.randomize_model(mi, i)
+                models.append(mi)
+        self.sim = BatchedSim(m, M, nsub, engine=c.physics_engine, models=models,
+                              sensors_every_substep=c.sensors_every_substep)
+        # Per-env episode state.
+        self.command = np.zeros((M, 3))
+        self.last_act = np.zeros((M, n))
+        self.steps = np.zeros(M, dtype=np.int64)
+        self.unstable_count = 0
+        self.push_count = 0
+        obs_dim = 6 + 3 * n + 3 + 2 * self.phase_groups.size
+        extra = self.critic_extra(self._sensors()).shape[1]
+        self.spec = base.TaskSpec(
+            name=self.NAME, obs_dim=obs_dim, critic_obs_dim=obs_dim + 3 + extra, action_dim=n,
+            episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=self.REWARD_TERMS,
+            privileged_dim=self.extrinsics.shape[1],
+        )
+
+    # ---- hooks ----------------------------------------------------------------------------------
+    def build_spec(self, config) -> mujoco.MjSpec:
+        raise NotImplementedError
+
+    def home_qpos(self, model: mujoco.MjModel) -> np.ndarray:
+        raise NotImplementedError
+
+    def foot_geoms(self, model: mujoco.MjModel) -> Sequence[int]:
+        raise NotImplementedError
+
+    def sole_offsets(self, model: mujoco.MjModel) -> Sequence[float]:
+        """[F] height of each ``{foot}_pos`` sensor above the foot's sole when it stands on the floor."""
+        raise NotImplementedError
+
+    def policy_actuators(self, model: mujoco.MjModel) -> Sequence[int]:
+        return range(model.nu)
+
+    def reward_terms(self, s: Mapping[str, np.ndarray], action: np.ndarray, done: np.ndarray
+                     ) -> dict[str, np.ndarray]:
+        """Unscaled terms {name: [M]} in ``REWARD_TERMS`` order; ``self.last_act`` is still the previous action."""
+        raise NotImplementedError
+
+    def critic_extra(self, s: Mapping[str, np.ndarray]) -> np.ndarray:
+        """[M, k] privileged signals appended to the critic observation after the local linear velocity."""
+        return np.zeros((self.num_envs, 0))
+
+    def sample_dr(self) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def randomize_model(self, model: mujoco.MjModel, i: int) -> None:
+        raise NotImplementedError
+
+    # ---- helpers --------------------------------------------------------------------------------
+    def _s(self, name: str) -> np.ndarray:
+        adr, dim = self._sensor[name]
+        return self.sim.sensordata[:, adr : adr + dim]
+
+    def _sensors(self) -> dict[str, np.ndarray]:
+        """Everything the observation and rewards read, at the current state."""
+        s = {k: self._s(k) for k in ("gyro", "local_linvel", "orientation")}
+        s["gravity"] = go1.gravity_from_quat(s["orientation"])
+        s["feet_h"] = np.stack([self._s(f"{f}_pos")[:, 2] for f in self.FEET], axis=1) - self.sole_offset
+        s["feet_vel"] = np.stack([self._s(f"{f}_vel") for f in self.FEET], axis=1)
+        s["contact"] = np.stack([self._s(f"{f}_contact")[:, 0] for f in self.FEET], axis=1) > 0
+        s["actuator_force"] = self.sim.sensordata[:, self._force_adr : self._force_adr + self.model.nu]
+        s["base_z"] = self.sim.qpos[:, 2]
+        s["joint_pos"] = self.sim.qpos[:, self._qadr]
+        s["joint_vel"] = self.sim.qvel[:, self._vadr]
+        s["phase"] = gait_phase(self.steps * self.dt, self.config.gait_frequency, self.gait_offsets)
+        s["stance"] = stance_mask(s["phase"], self.config.stance_fraction)
+        return s
+
+    def _observe(self, s: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        noise = self._rng.uniform(-1.0, 1.0, size=(self.num_envs, self._noise_scale.size)) * self._noise_scale
+        obs = actor_obs(s["gyro"], s["gravity"], s["joint_pos"], s["joint_vel"], self.last_act, self.command,
+                        phase_features(s["phase"][:, self.phase_groups]), self.default_pose, noise)
+        cobs = np.concatenate([obs, s["local_linvel"], self.critic_extra(s)], axis=1)
+        return obs, cobs
+
+    def _ctrl(self, action: np.ndarray) -> np.ndarray:
+        ctrl = np.tile(self.default_ctrl, (self.num_envs, 1))
+        ctrl[:, self.policy_idx] += self.config.action_scale * action
+        return ctrl
+
+    def _reset_envs(self, idx: np.ndarray) -> None:
+        c, r, n = self.config, self._rng, idx.size
+        qpos, qvel = go1.random_base_states(self.init_qpos, self.model.nv, n, r, c.reset_xy, c.reset_yaw,
+                                            c.reset_base_vel)
+        self.sim.set_state(idx, qpos, qvel, ctrl=np.tile(self.default_ctrl, (n, 1)))
+        self.command[idx] = r.uniform(self._cmd_low, self._cmd_high, size=(n, 3))
+        self.last_act[idx] = 0.0
+        self.steps[idx] = 0
+
+    def _reset_and_observe(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._reset_envs(idx)
+        return self._observe(self._sensors())
+
+    def _push(self, done: np.ndarray) -> None:
+        if not self._push_every:
+            return
+        idx = np.flatnonzero((self.steps % self._push_every == 0) & ~done)
+        if idx.size:
+            dq = np.zeros((idx.size, self.model.nv))
+            lim = np.array(self.config.push_vel)
+            dq[:, 0:3] = self._rng.uniform(-lim, lim, size=(idx.size, 3))
+            self.sim.add_velocity(idx, dq)
+            self.push_count += int(idx.size)
+
+    # ---- API ------------------------------------------------------------------------------------
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        obs, cobs = self._reset_and_observe(np.arange(self.num_envs))
+        return obs.astype(np.float32), cobs.astype(np.float32)
+
+    def step(self, action: np.ndarray) -> base.StepOut:
+        c = self.config
+        a = np.nan_to_num(np.asarray(action, dtype=np.float64).reshape(self.num_envs, -1), nan=0.0)
+        if c.action_clip > 0:
+            a = np.clip(a, -c.action_clip, c.action_clip)
+        unstable = self.sim.step(self._ctrl(a))
+        self.steps += 1
+        s = self._sensors()
+        done = terminated(s["gravity"], s["base_z"], c.max_tilt_deg, c.min_base_height)
+        scaled = go1.scale_terms(self.reward_terms(s, a, done), self.scales, self.dt)
+        reward = np.sum(np.stack(list(scaled.values())), axis=0)
+        self.last_act = a  # the observation shows the action just applied
+        next_obs, next_cobs = self._observe(s)
+        self._push(done)
+        out, n_unstable = go1.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
+                                          self.steps >= c.episode_length, self._reset_and_observe)
+        self.unstable_count += n_unstable
+        return out
+
+    def base_velocity(self) -> np.ndarray:
+        """[M, 3] measured body-frame (vx, vy) and yaw rate: what ``command`` asks for (walking metric)."""
+        return np.concatenate([self._s("local_linvel")[:, :2], self._s("gyro")[:, 2:3]], axis=1)
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+# --------------------------------------------------------------------------------------------------
+# Walking metric
+# --------------------------------------------------------------------------------------------------
+def walking_metric(task_name: str, weights: Any, act_fn: Callable[[Any, np.ndarray], np.ndarray],
+                   num_envs: int = 16, steps: int | None = None, seconds: float | None = None, seed: int = 0,
+                   overrides: Mapping[str, Any] | None = None) -> dict[str, float]:
+    """Velocity tracking of a deterministic policy, independent of any reward scaling.
+
+    Runs ``act_fn(weights, obs) -> action [M, action_dim]`` on a fresh ``task_name`` instance with
+    ``num_envs`` envs; each env's *first* episode is evaluated for at most ``steps`` control steps
+    (``seconds / ctrl_dt`` if given instead; default one episode length). The task must expose
+    ``command [M, 3]`` and ``base_velocity() [M, 3]`` (body-frame vx, vy, yaw rate). Returns:
+
+    * ``tracking_error``: mean over evaluated steps of |v_xy_cmd - v_xy| (m/s, body frame);
+    * ``yaw_rate_error``: mean |wz_cmd - wz| (rad/s);
+    * ``command_speed`` / ``command_yaw_rate``: mean |v_xy_cmd| and |wz_cmd| over the same steps (the
+      errors of a policy that stands still);
+    * ``fall_rate``: fraction of the ``num_envs`` episodes that terminated (not truncated) in the window;
+    * ``evaluated_steps`` and ``episodes``.
+
+    A step counts when its env is still in its first episode and did not end on that step (an ended env's
+    state is already the next episode's reset); the command compared is the one in force during the step.
+    """
+    import tasks
+
+    task = tasks.make(task_name, num_envs, seed=seed, overrides=overrides)
+    try:
+        if not (hasattr(task, "command") and callable(getattr(task, "base_velocity", None))):
+            raise TypeError(f"task {task_name!r} exposes no command / base_velocity(): not a locomotion task")
+        if steps is None:
+            steps = round(seconds / task.spec.ctrl_dt) if seconds is not None else task.spec.episode_length
+        if steps <= 0:
+            raise ValueError(f"steps must be positive, got {steps}")
+        obs, _ = task.reset()
+        active = np.ones(num_envs, dtype=bool)
+        fell = np.zeros(num_envs, dtype=bool)
+        sums = np.zeros(4)  # tracking error, yaw error, command speed, command yaw rate
+        count = 0
+        for _ in range(steps):
+            cmd = np.array(task.command, dtype=np.float64, copy=True)
+            out = task.step(np.asarray(act_fn(weights, obs), dtype=np.float32))
+            ended = out.terminated | out.truncated
+            fell |= active & out.terminated
+            ok = active & ~ended
+            if ok.any():
+                vel = task.base_velocity()[ok]
+                c = cmd[ok]
+                sums += [np.linalg.norm(c[:, :2] - vel[:, :2], axis=1).sum(), np.abs(c[:, 2] - vel[:, 2]).sum(),
+                         np.linalg.norm(c[:, :2], axis=1).sum(), np.abs(c[:, 2]).sum()]
+                count += int(ok.sum())
+            active &= ~ended
+            obs = out.obs
+            if not active.any():
+                break
+    finally:
+        task.close()
+    mean = sums / max(count, 1) if count else np.full(4, np.nan)
+    return {
+        "tracking_error": float(mean[0]), "yaw_rate_error": float(mean[1]),
+        "command_speed": float(mean[2]), "command_yaw_rate": float(mean[3]),
+        "fall_rate": float(fell.mean()), "evaluated_steps": count, "episodes": num_envs,
+    }
