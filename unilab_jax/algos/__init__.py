@@ -13,6 +13,10 @@ from types import ModuleType
 _ALGORITHMS: dict[str, str] = {
     "ppo": "unilab_jax.algos.ppo",
     "appo": "unilab_jax.algos.appo",
+    "sac": "unilab_jax.algos.sac",
+    "td3": "unilab_jax.algos.td3",
+    "fastsac": "unilab_jax.algos.fastsac",
+    "flashsac": "unilab_jax.algos.flashsac",
 }
 
 
