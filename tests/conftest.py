@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import os
+import pathlib
 
 import pytest
+
+# Robots load offline from ../shared/robots when that folder exists (the Makefile and CI set it too).
+_ROBOTS = pathlib.Path(__file__).resolve().parents[2] / "shared" / "robots"
+if _ROBOTS.is_dir():
+    os.environ.setdefault("MENAGERIE_ROOT", str(_ROBOTS))
 
 _SHM = "/dev/shm"
 _PREFIX = "unilab_"

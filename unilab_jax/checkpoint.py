@@ -1,21 +1,33 @@
-"""Whole-training-state checkpoints with orbax.
+"""Whole-training-state checkpoints: orbax where it is installed, else a numpy-only format.
 
 The training state (params, optimizer state, normalizers, RNG key, counters) is one pytree. It is
 saved as a nested dict of numpy arrays (NamedTuples become dicts of their fields) plus a JSON
 record of counters and configs. Restoring fills a template of the same structure: any missing,
 extra or reshaped leaf is named in the error, so a checkpoint is never silently loaded into a
 different network.
+
+jax installs write orbax checkpoints; an MLX-only install (no orbax, which needs jax) writes the
+``npz`` format below: one ``state.npz`` of path -> array plus ``meta.json`` per step, written
+crash-safely. Either install restores either format (orbax steps need orbax), per step folder.
 """
 
 from __future__ import annotations
 
+import json
 import os
-from collections.abc import Callable
+import shutil
+import uuid
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
 from unilab_jax import xp as shim
+
+FORMATS = ("orbax", "npz")
+FORMAT_ENV = "UNILAB_CHECKPOINT_FORMAT"  # forces the format new steps are written in
+NPZ_STATE, NPZ_META, NPZ_MARKER = "state.npz", "meta.json", "unilab_checkpoint.json"
+_TMP_TAG, _DEL_TAG = ".unilab-tmp-", ".unilab-del-"
 
 
 class CheckpointMismatchError(ValueError):
@@ -68,41 +80,252 @@ def fill(template: Any, values: dict[str, np.ndarray], convert: Callable[[np.nda
 
 
 class Checkpointer:
-    """Keeps the last ``max_to_keep`` checkpoints of a run under ``directory``."""
+    """Keeps the last ``max_to_keep`` checkpoints of a run under ``directory`` (one folder per step).
 
-    def __init__(self, directory: str, max_to_keep: int = 3):
-        import orbax.checkpoint as ocp
+    ``format``: ``"orbax"`` (needs ``orbax-checkpoint``, which needs jax), ``"npz"`` (numpy only) or
+    ``None``: the ``UNILAB_CHECKPOINT_FORMAT`` environment variable if set, else orbax when it can be
+    imported (jax installs) and npz otherwise (an MLX-only install). The format only decides how new
+    steps are written: :meth:`restore` reads either format, detected per step folder, so a run saved
+    by an MLX-only install restores under JAX and the reverse (reading an orbax step needs orbax).
+    """
 
-        self._ocp = ocp
+    def __init__(self, directory: str, max_to_keep: int = 3, format: str | None = None):  # noqa: A002
         self.directory = os.path.abspath(directory)
-        self._mngr = ocp.CheckpointManager(
-            self.directory, options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True),
-            item_names=("state", "meta"))
+        self.max_to_keep = max_to_keep
+        fmt = format or os.environ.get(FORMAT_ENV) or ("orbax" if _orbax_available() else "npz")
+        if fmt not in FORMATS:
+            raise ValueError(f"checkpoint format {fmt!r}: choose one of {FORMATS}")
+        self.format = fmt
+        self._mngr = None
+        self._ocp = None
+        os.makedirs(self.directory, exist_ok=True)
+        _remove_dead_temp_dirs(self.directory)
+        if fmt == "orbax":
+            self._ocp = _import_orbax()
+            self._mngr = self._ocp.CheckpointManager(
+                self.directory, options=self._ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True),
+                item_names=("state", "meta"))
+
+    # -- steps -------------------------------------------------------------------------------------
+    def all_steps(self) -> list[int]:
+        """Complete steps on disk in either format (plus orbax saves still in flight), ascending."""
+        steps = set(_complete_steps(self.directory))
+        if self._mngr is not None:
+            steps.update(int(s) for s in self._mngr.all_steps())
+        return sorted(steps)
 
     def latest_step(self) -> int | None:
-        return self._mngr.latest_step()
+        steps = self.all_steps()
+        return steps[-1] if steps else None
 
+    def step_format(self, step: int) -> str:
+        """``"npz"`` or ``"orbax"``: how ``step`` was written (FileNotFoundError if it is not complete)."""
+        path = os.path.join(self.directory, str(step))
+        if os.path.isfile(os.path.join(path, NPZ_MARKER)):
+            return "npz"
+        if os.path.isdir(path) or (self._mngr is not None and step in self._mngr.all_steps()):
+            return "orbax"
+        raise FileNotFoundError(f"no checkpoint of step {step} under {self.directory}")
+
+    # -- save --------------------------------------------------------------------------------------
     def save(self, step: int, state: Any, meta: dict[str, Any]) -> None:
-        """Saves asynchronously; a step is only visible once fully committed (orbax atomicity)."""
-        ocp = self._ocp
-        self._mngr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(to_saveable(state)),
-                                                      meta=ocp.args.JsonSave(meta)), force=True)
+        """orbax: saves asynchronously, a step is only visible once committed (orbax atomicity). npz:
+        saves synchronously into a temporary folder, fsyncs it and renames it to ``<step>``."""
+        if self._mngr is not None:
+            ocp = self._ocp
+            self._mngr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(to_saveable(state)),
+                                                          meta=ocp.args.JsonSave(meta)), force=True)
+            return
+        _save_npz(self.directory, int(step), to_saveable(state), meta)
+        for old in _complete_steps(self.directory)[:-self.max_to_keep] if self.max_to_keep else []:
+            _remove_step(self.directory, old)
 
-    def restore(self, template: Any, convert: Callable[[np.ndarray, Any], Any],
-                step: int | None = None) -> tuple[Any, dict[str, Any]]:
-        """(state, meta) of ``step`` (default: latest), with leaves converted by ``convert(arr, like)``."""
-        ocp = self._ocp
-        step = self.latest_step() if step is None else step
+    # -- restore -----------------------------------------------------------------------------------
+    def read(self, step: int | None = None) -> tuple[int, dict[str, np.ndarray], dict[str, Any]]:
+        """(step, path -> numpy array, meta) of ``step`` (default: latest), in either format."""
+        step = self.latest_step() if step is None else int(step)
         if step is None:
             raise FileNotFoundError(f"no checkpoint under {self.directory}")
-        out = self._mngr.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
-                                                               meta=ocp.args.JsonRestore()))
+        if self.step_format(step) == "npz":
+            values, meta = _load_npz(os.path.join(self.directory, str(step)))
+            return step, values, meta
+        if self._mngr is None:
+            try:
+                ocp = _import_orbax()
+            except ImportError as e:
+                raise ImportError(f"checkpoint step {step} under {self.directory} was written by orbax; reading "
+                                  f"it needs orbax-checkpoint (pip install 'unilab-jax[jax]'): {e}") from e
+            # A read-only manager: max_to_keep=None, so opening it never deletes anything.
+            mngr = ocp.CheckpointManager(self.directory, options=ocp.CheckpointManagerOptions(create=False),
+                                         item_names=("state", "meta"))
+        else:
+            ocp, mngr = self._ocp, self._mngr
+        try:
+            out = mngr.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
+                                                             meta=ocp.args.JsonRestore()))
+        finally:
+            if mngr is not self._mngr:
+                mngr.close()
         values = {p: np.asarray(v) for p, v in shim.tree_paths(out["state"])}
-        return fill(template, values, convert), dict(out["meta"])
+        return step, values, dict(out["meta"])
+
+    def restore(self, template: Any, convert: Callable[[np.ndarray, Any], Any], step: int | None = None,
+                only: Sequence[str] | None = None) -> tuple[Any, dict[str, Any]]:
+        """(state, meta) of ``step`` (default: latest), with leaves converted by ``convert(arr, like)``.
+
+        ``only``: restore just these top-level entries of the saved state (e.g. ``("params", "obs_norm")``
+        to act with a policy trained on another platform, whose optimizer state has another layout);
+        ``template`` is then a dict of those entries. Every leaf under them must still match.
+        """
+        _, values, meta = self.read(step)
+        if only is not None:
+            names = tuple(only)
+            if not isinstance(template, dict) or sorted(template) != sorted(names):
+                raise ValueError(f"with only={names}, the template must be a dict with exactly those keys")
+            values = {p: v for p, v in values.items() if p.split("/", 1)[0] in names}
+        return fill(template, values, convert), meta
 
     def wait(self) -> None:
-        self._mngr.wait_until_finished()
+        if self._mngr is not None:
+            self._mngr.wait_until_finished()
 
     def close(self) -> None:
-        self._mngr.wait_until_finished()
-        self._mngr.close()
+        if self._mngr is not None:
+            self._mngr.wait_until_finished()
+            self._mngr.close()
+
+
+# -- the numpy-only format -------------------------------------------------------------------------
+# <directory>/<step>/state.npz   every leaf, keyed by its path ("params/actor/0/w")
+# <directory>/<step>/meta.json   the JSON record passed to save
+# <directory>/<step>/unilab_checkpoint.json   {"format": "npz", "version": 1, "dtypes": {path: name}},
+#                                written last; all three are fsynced in <step>.unilab-tmp-<pid>-<hex>,
+#                                which is then renamed to <step> (atomic on POSIX) and the parent fsynced.
+# A folder whose name is not a plain integer (a temp folder left by a crash) is never a step.
+
+
+def _orbax_available() -> bool:
+    try:
+        _import_orbax()
+    except ImportError:
+        return False
+    return True
+
+
+def _import_orbax() -> Any:
+    import orbax.checkpoint as ocp
+
+    return ocp
+
+
+def _fsync_path(path: str, directory: bool = False) -> None:
+    fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    try:
+        os.fsync(fd)
+    except OSError:
+        if not directory:  # some filesystems refuse fsync on folders; files must be durable
+            raise
+    finally:
+        os.close(fd)
+
+
+def _complete_steps(directory: str) -> list[int]:
+    """Integer-named step folders: npz ones carry the marker (renamed in whole); others are orbax's,
+    which orbax itself only renames from its temporary name once committed."""
+    try:
+        names = os.listdir(directory)
+    except FileNotFoundError:
+        return []
+    return sorted(int(n) for n in names if n.isdigit() and os.path.isdir(os.path.join(directory, n)))
+
+
+def _remove_dead_temp_dirs(directory: str) -> None:
+    """Deletes temp folders of npz saves whose process is gone (a crash mid-save); live ones are kept."""
+    for name in os.listdir(directory):
+        for tag in (_TMP_TAG, _DEL_TAG):
+            if tag in name:
+                pid = name.split(tag, 1)[1].split("-", 1)[0]
+                if pid.isdigit() and not _pid_alive(int(pid)):
+                    shutil.rmtree(os.path.join(directory, name), ignore_errors=True)
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _encode(arr: np.ndarray) -> tuple[np.ndarray, str]:
+    """(array npz can store, dtype name). Extension dtypes (bfloat16 ...) are stored as raw bits."""
+    arr = np.asarray(arr, order="C")  # (ascontiguousarray would make 0-d arrays 1-d)
+    if arr.dtype.kind == "V" or arr.dtype.type.__module__ != "numpy":
+        return arr.view(f"u{arr.dtype.itemsize}"), arr.dtype.name
+    return arr, arr.dtype.str
+
+
+def _decode(arr: np.ndarray, name: str) -> np.ndarray:
+    try:
+        dtype = np.dtype(name)
+    except TypeError:
+        try:
+            import ml_dtypes
+
+            dtype = np.dtype(getattr(ml_dtypes, name))
+        except (ImportError, AttributeError) as e:
+            raise TypeError(f"checkpoint leaf of dtype {name!r} cannot be read without ml_dtypes") from e
+    return arr if arr.dtype == dtype else arr.view(dtype)
+
+
+def _save_npz(directory: str, step: int, saveable: Any, meta: dict[str, Any]) -> None:
+    meta_json = json.dumps(meta, indent=2)  # fails before anything is written if meta is not JSON
+    arrays, dtypes = {}, {}
+    for path, leaf in shim.tree_paths(saveable):
+        arrays[path], dtypes[path] = _encode(np.asarray(leaf))
+    tmp = os.path.join(directory, f"{step}{_TMP_TAG}{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    os.makedirs(tmp)
+    try:
+        with open(os.path.join(tmp, NPZ_STATE), "wb") as f:
+            np.savez(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        for name, text in ((NPZ_META, meta_json),
+                           (NPZ_MARKER, json.dumps({"format": "npz", "version": 1, "step": step, "dtypes": dtypes}))):
+            with open(os.path.join(tmp, name), "w") as f:
+                f.write(text)
+                f.flush()
+                os.fsync(f.fileno())
+        _fsync_path(tmp, directory=True)
+        final = os.path.join(directory, str(step))
+        if os.path.exists(final):  # re-saving a step replaces it, as orbax's force=True does
+            _remove_step(directory, step)
+        os.rename(tmp, final)
+        _fsync_path(directory, directory=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _remove_step(directory: str, step: int) -> None:
+    """Renames the step away first (atomic: it stops being a step at once), then deletes it."""
+    trash = os.path.join(directory, f"{step}{_DEL_TAG}{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    os.rename(os.path.join(directory, str(step)), trash)
+    shutil.rmtree(trash, ignore_errors=True)
+
+
+def _load_npz(path: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    with open(os.path.join(path, NPZ_MARKER)) as f:
+        marker = json.load(f)
+    if marker.get("format") != "npz" or marker.get("version") != 1:
+        raise ValueError(f"{path}: unknown checkpoint format {marker!r}")
+    dtypes = marker.get("dtypes", {})
+    with np.load(os.path.join(path, NPZ_STATE), allow_pickle=False) as z:
+        values = {k: _decode(z[k], dtypes.get(k, z[k].dtype.str)) for k in z.files}
+    with open(os.path.join(path, NPZ_META)) as f:
+        meta = json.load(f)
+    return values, meta

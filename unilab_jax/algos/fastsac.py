@@ -176,4 +176,8 @@ def make_learner(platform: str, config: FastSACConfig, spec: Any):
         from unilab_jax.algos.offpolicy_jax import SACFamilyLearner
 
         return SACFamilyLearner(sys.modules[__name__], config, spec)
+    if platform == "mlx":
+        from unilab_mlx.offpolicy import SACFamilyLearner as MlxSACFamilyLearner
+
+        return MlxSACFamilyLearner(sys.modules[__name__], config, spec)
     raise ValueError(f"FastSAC has no learner for platform {platform!r} yet")

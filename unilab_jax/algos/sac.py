@@ -268,4 +268,10 @@ def make_learner(platform: str, config: SACConfig, spec: Any):
         from unilab_jax.algos.offpolicy_jax import SACFamilyLearner
 
         return SACFamilyLearner(sys.modules[__name__], config, spec)
+    if platform == "mlx":
+        import sys
+
+        from unilab_mlx.offpolicy import SACFamilyLearner as MlxSACFamilyLearner
+
+        return MlxSACFamilyLearner(sys.modules[__name__], config, spec)
     raise ValueError(f"SAC has no learner for platform {platform!r} yet")

@@ -131,4 +131,8 @@ def make_learner(platform: str, config: TD3Config, spec: Any):
         from unilab_jax.algos.offpolicy_jax import TD3Learner
 
         return TD3Learner(config, spec)
+    if platform == "mlx":
+        from unilab_mlx.offpolicy import TD3Learner as MlxTD3Learner
+
+        return MlxTD3Learner(config, spec)
     raise ValueError(f"TD3 has no learner for platform {platform!r} yet")
