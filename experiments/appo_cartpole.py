@@ -3,10 +3,9 @@
     python experiments/appo_cartpole.py --logdir=runs/appo_cartpole
 """
 
-from unilab_jax.cli import run_experiment
+from ppo_cartpole import RECIPE  # same hyperparameters as PPO; only the sync mode and targets differ
 
-RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "horizon": 32, "learning_rate": 1e-3,
-          "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.0, "gamma": 0.98, "desired_kl": 0.01}
+from unilab_jax.cli import run_experiment
 
 if __name__ == "__main__":
     run_experiment(algo="appo", task="cartpole_balance", recipe=RECIPE, default_total_steps=200_000)
