@@ -62,3 +62,16 @@ def test_keeps_latest_and_errors_when_empty(tmp_path):
     _, meta = ck.restore(_state([2, 2]), _to_jax)
     assert meta["step"] == 3
     ck.close()
+
+
+def test_saving_an_existing_step_replaces_it(tmp_path):
+    # The trainer's final save can land on the step of an evaluation checkpoint, with newer state.
+    ck = Checkpointer(str(tmp_path / "ck"))
+    ck.save(5, _state([2, 2], seed=1), {"v": 1})
+    newer = _state([2, 2], seed=2)
+    ck.save(5, newer, {"v": 2})
+    ck.wait()
+    restored, meta = ck.restore(_state([2, 2]), _to_jax)
+    ck.close()
+    assert meta["v"] == 2
+    np.testing.assert_array_equal(np.asarray(restored["params"][0]["w"]), np.asarray(newer["params"][0]["w"]))

@@ -54,3 +54,18 @@ def test_invalid_flags_fail_before_workers_start(tmp_path, flag, message):
 def test_resume_without_checkpoint_is_an_error(tmp_path):
     out = _run("ppo_cartpole.py", "--resume", f"--logdir={tmp_path / 'empty'}", timeout=120)
     assert out.returncode == 2 and "no checkpoints" in out.stderr
+
+
+def test_fastsac_g1_trained_on_mlx_resumes_on_jax(tmp_path):
+    # Issue criterion: fastsac_g1.py runs with --platform=mlx and its checkpoint restores with --platform=jax.
+    logdir = str(tmp_path / "g1")
+    small = ["--num_workers=2", "--config=learning_starts=2048", "--config=batch_size=256", "--eval_envs=2",
+             f"--logdir={logdir}"]
+    first = _run("fastsac_g1.py", "--platform=mlx", "--total_steps=5000", *small)
+    assert first.returncode == 0, first.stderr[-3000:]
+    done = json.load(open(os.path.join(logdir, "summary.json")))
+    assert done["updates"] >= 1 and os.listdir(os.path.join(logdir, "checkpoints"))
+    second = _run("fastsac_g1.py", "--platform=jax", "--resume", f"--total_steps={done['env_steps'] + 3000}", *small)
+    assert second.returncode == 0, second.stderr[-3000:]
+    resumed = json.load(open(os.path.join(logdir, "summary.json")))
+    assert resumed["updates"] > done["updates"] and resumed["env_steps"] >= done["env_steps"] + 3000

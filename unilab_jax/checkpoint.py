@@ -130,9 +130,13 @@ class Checkpointer:
     # -- save --------------------------------------------------------------------------------------
     def save(self, step: int, state: Any, meta: dict[str, Any]) -> None:
         """orbax: saves asynchronously, a step is only visible once committed (orbax atomicity). npz:
-        saves synchronously into a temporary folder, fsyncs it and renames it to ``<step>``."""
+        saves synchronously into a temporary folder, fsyncs it and renames it to ``<step>``. Saving a
+        step that exists replaces it (e.g. the final save after more updates at the same env step)."""
         if self._mngr is not None:
             ocp = self._ocp
+            self._mngr.wait_until_finished()
+            if step in self._mngr.all_steps():
+                self._mngr.delete(step)
             self._mngr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(to_saveable(state)),
                                                           meta=ocp.args.JsonSave(meta)), force=True)
             return

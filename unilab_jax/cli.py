@@ -87,7 +87,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     task_config = apply_overrides(tasks.default_config(task_name), task_overrides)  # rejects unknown keys
     task_overrides = {k: getattr(task_config, k) for k in task_overrides}
     batch = config.horizon * FLAGS.num_workers * FLAGS.envs_per_worker
-    if hasattr(config, "num_minibatches") and batch < config.num_minibatches:
+    if module.BUFFER == "trajectory" and batch < config.num_minibatches:
         raise FlagError(f"a batch of {batch} transitions cannot make {config.num_minibatches} minibatches")
     logdir = FLAGS.logdir or os.path.join("runs", f"{algo}_{task_name}_s{FLAGS.seed}")
     if FLAGS.resume and not os.path.isdir(os.path.join(logdir, "checkpoints")):

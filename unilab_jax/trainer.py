@@ -319,7 +319,21 @@ class _TrajectorySource:
 class _ReplaySource:
     """Off-policy: workers fill the replay ring on their own; the learner samples [U, B] batches,
     holding the update-to-data ratio at ``utd`` gradient steps per env step, and publishes weights
-    every ``publish_every`` gradient steps."""
+    every ``publish_every`` gradient steps.
+
+    * Warm-up: no gradient step before the ring holds ``max(learning_starts, batch_size)``
+      transitions. While waiting, ``produce`` hands the loop an empty batch (``{}``, a no-op for the
+      learner) every ``_TICK_S`` seconds, so the loop keeps logging, evaluating and checking its
+      env-step budget: a run whose ``total_steps`` is smaller than ``learning_starts`` ends cleanly
+      instead of blocking until the ring fills.
+    * The ratio counts env steps from the moment learning starts (as FastTD3 / SB3 do): counted from
+      step 0, the first call would owe ``utd * learning_starts`` gradient steps at once, a burst
+      on the small initial buffer.
+    * The ratio is an upper bound: async workers never wait for the learner, so a learner slower than
+      ``utd x`` the env rate runs below it (``perf/utd`` logs the ratio reached).
+    """
+
+    _TICK_S = 0.25  # seconds between no-op items while the ring warms up
 
     def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int):
         self._pool, self._xp, self._cfg = pool, xp, cfg
@@ -327,28 +341,55 @@ class _ReplaySource:
         self._steps0 = counters["env_steps"]  # env steps before this process (resume)
         self._grad_steps = 0
         self._since_publish = 0
-        self._pool_stats: dict[str, Any] = {}
+        self._learn_steps0: int | None = None  # pool env steps when learning started
+        self._need = max(int(cfg.learning_starts), int(cfg.batch_size))
+        capacity = pool.num_workers * pool.buffer.capacity
+        if self._need > capacity:
+            raise ValueError(f"learning_starts/batch_size ({self._need}) exceed the replay capacity ({capacity} "
+                             f"transitions over {pool.num_workers} workers): raise replay_capacity")
+
+    def _wait_tick(self) -> None:
+        """One short wait for data: serial mode steps the in-process workers, process mode sleeps
+        (and notices a dead worker instead of spinning forever)."""
+        if self._pool.serial:
+            if self._pool.pump(1) == 0:
+                raise RuntimeError("serial replay workers cannot step (no weights published?)")
+        else:
+            self._pool._maybe_check_workers()
+            time.sleep(0.002)
 
     def produce(self, stop: threading.Event) -> tuple[dict, dict] | None:
         cfg, pool = self._cfg, self._pool
         u, b = cfg.updates_per_call, cfg.batch_size
-        if pool.replay_size() < max(cfg.learning_starts, b):
-            pool.wait_replay(max(cfg.learning_starts, b))
+        if self._learn_steps0 is None:
+            t_end = time.monotonic() + self._TICK_S
+            while pool.replay_size() < self._need:
+                if stop.is_set():
+                    return None
+                if time.monotonic() >= t_end:
+                    return {}, {"scalars": {}, "episodes": 0, "noop": True}
+                self._wait_tick()
+            self._learn_steps0 = pool.env_steps()
         # Hold the update-to-data ratio: wait for data rather than over-train on a small buffer.
-        while (self._grad_steps + u) > cfg.utd * max(pool.env_steps(), 1) and not stop.is_set():
-            if pool.serial:
-                pool.pump(1)
-            else:
-                time.sleep(0.002)
-        if stop.is_set():
-            return None
+        t0 = time.perf_counter()
+        while self._grad_steps + u > cfg.utd * (pool.env_steps() - self._learn_steps0):
+            if stop.is_set():
+                return None
+            self._wait_tick()
+        t1 = time.perf_counter()
         batch = pool.sample(u * b, self._rng)
         self._grad_steps += u
         out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in _REPLAY_FIELDS}
-        return out, {"scalars": {}, "episodes": 0}
+        scalars = {"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1}
+        return out, {"scalars": scalars, "episodes": 0}
 
     def advance(self, counters: dict[str, int], stats: dict) -> bool:
         counters["env_steps"] = self._steps0 + self._pool.env_steps()
+        if stats.get("noop"):  # warm-up tick: no gradient step happened, nothing to publish
+            counters["updates"] -= 1
+            return False
+        learned_on = max(self._pool.env_steps() - (self._learn_steps0 or 0), 1)
+        stats["scalars"]["perf/utd"] = self._grad_steps / learned_on
         self._since_publish += self._cfg.updates_per_call
         if self._since_publish >= self._cfg.publish_every:
             self._since_publish = 0

@@ -70,6 +70,7 @@ class FlashSACConfig:
     replay_capacity: int = 2_097_152
     learning_starts: int = 16_384
     publish_every: int = 4
+    horizon: int = 32  # env steps per worker chunk (bookkeeping only: async workers poll weights every step)
     gamma: float = 0.99
     tau: float = 0.1
     normalize_obs: bool = True

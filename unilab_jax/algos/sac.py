@@ -51,6 +51,7 @@ class SACConfig:
     gradient steps scanned inside one jitted ``update`` (the batch is ``[U, batch_size, ...]``);
     ``replay_capacity`` transitions in all (split over workers); ``learning_starts`` transitions
     collected before the first update; ``publish_every`` gradient steps between weight publications.
+    ``horizon``: control steps per worker chunk (the runtime's unit; the trainer and the CLI read it).
     """
 
     actor_hidden: tuple[int, ...] = (256, 256)
@@ -64,6 +65,7 @@ class SACConfig:
     replay_capacity: int = 1_000_000
     learning_starts: int = 5_000
     publish_every: int = 8
+    horizon: int = 32  # env steps per worker chunk (bookkeeping only: async workers poll weights every step)
     gamma: float = 0.99
     tau: float = 0.005
     normalize_obs: bool = True

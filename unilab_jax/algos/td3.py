@@ -50,6 +50,7 @@ class TD3Config:
     replay_capacity: int = 1_000_000
     learning_starts: int = 5_000
     publish_every: int = 8
+    horizon: int = 32  # env steps per worker chunk (bookkeeping only: async workers poll weights every step)
     gamma: float = 0.99
     tau: float = 0.005
     normalize_obs: bool = True

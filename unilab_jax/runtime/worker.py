@@ -123,6 +123,11 @@ class Worker:
         self.spec = self.task.spec
         self.m = args.envs_per_worker
         self.rng = np.random.default_rng(np.random.SeedSequence([args.worker_seed, 0x5EED]))
+        # Exploration noise held for NOISE_HOLD_STEPS control steps per env (an algorithm module's
+        # optional attribute; 1: a fresh draw every step). Redrawn early when an env's episode ends.
+        self.noise_hold = max(int(getattr(self.algo, "NOISE_HOLD_STEPS", 1)), 1)
+        self._noise = np.zeros((self.m, self.spec.action_dim), np.float32)
+        self._noise_left = np.zeros(self.m, np.int64)  # steps each env's current draw is still held
         self.obs, self.critic_obs = self.task.reset()
         self.ep_return = np.zeros(self.m, np.float32)
         self.ep_length = np.zeros(self.m, np.int32)
@@ -176,7 +181,7 @@ class Worker:
             if got is not None:
                 self._set_weights(*got)
         t0 = time.perf_counter()
-        noise = self.rng.standard_normal((self.m, self.spec.action_dim), dtype=np.float32)
+        noise = self._exploration_noise()
         action, extras = self.algo.act(self.params, self.obs, noise, False)
         action = np.asarray(action, dtype=np.float32)
         if not self._extras_checked:
@@ -190,6 +195,8 @@ class Worker:
         t2 = time.perf_counter()
         res = self.task.step(action)
         t3 = time.perf_counter()
+        if self.noise_hold > 1:
+            self._noise_left[np.logical_or(res.terminated, res.truncated)] = 0  # new episode: new draw
         out["reward"][...] = res.reward
         out["terminated"][...] = res.terminated
         out["truncated"][...] = res.truncated
@@ -224,6 +231,18 @@ class Worker:
         timing[0] += t1 - t0
         timing[1] += t3 - t2
         timing[2] += (t2 - t1) + (time.perf_counter() - t3)
+
+    def _exploration_noise(self) -> np.ndarray:
+        """Standard normal ``[M, A]``: a fresh draw every step, or each env's draw held for
+        ``noise_hold`` steps (vectorised: only the envs whose hold ran out draw again)."""
+        if self.noise_hold <= 1:
+            return self.rng.standard_normal((self.m, self.spec.action_dim), dtype=np.float32)
+        redraw = np.flatnonzero(self._noise_left <= 0)
+        if redraw.size:
+            self._noise[redraw] = self.rng.standard_normal((redraw.size, self.spec.action_dim), dtype=np.float32)
+            self._noise_left[redraw] = self.noise_hold
+        self._noise_left -= 1
+        return self._noise.copy()
 
     def _check_extras(self, action: np.ndarray, extras: dict) -> None:
         want = set(self.algo.extras(self.spec.action_dim))

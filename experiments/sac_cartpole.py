@@ -1,0 +1,23 @@
+"""SAC on cart-pole balance: the off-policy quick demo.
+
+    python experiments/sac_cartpole.py --logdir=runs/sac_cartpole
+
+Measured on the 2-core dev VM (2 workers x 16 envs, --eval_every=50000): eval return >= 150 after
+~250-300k env steps / ~2k gradient steps, ~10-12 s of wall time from process start (seeds 0, 1, 2),
+~195-200 from 400k steps on. The workers step cart-pole ~30x faster than this learner can update,
+so ``utd`` is small: 0.0125 gradient steps per transition (a batch of 256, 32 steps per jitted call)
+is about 75% of what the learner manages while sharing the 2 cores, so the ratio holds (the learner
+is throttled, not starved) and the result depends on env steps, not on the machine's load. Faster
+target networks than SAC's default (tau 0.02 instead of 0.005) and lr 1e-3 make it learn in ~2k
+steps instead of ~8k.
+"""
+
+from unilab_jax.cli import run_experiment
+
+RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
+          "publish_every": 32, "utd": 0.0125, "learning_starts": 5_000, "replay_capacity": 1_000_000,
+          "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3,
+          "gamma": 0.98, "tau": 0.02}
+
+if __name__ == "__main__":
+    run_experiment(algo="sac", task="cartpole_balance", recipe=RECIPE, default_total_steps=1_000_000)

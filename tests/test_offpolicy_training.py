@@ -1,0 +1,149 @@
+"""Off-policy learning through the real runtime (2 worker processes filling the shared replay ring,
+the Trainer's replay loop, the JAX learners), the warm-up exit, noise holding, and the walking
+experiment scripts as a user runs them.
+
+Budgets are env steps; on this 2-core VM the workers step cart-pole ~30x faster than the learners
+update, so every recipe's ``utd`` sits below the learner's pace and the gradient steps per env step
+hold (the learner is throttled, not starved): results depend on env steps, not on the machine's load.
+A random policy scores ~35 on cart-pole (of 200).
+"""
+
+import glob
+import importlib.util
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from unilab_jax import algos
+from unilab_jax.config import apply_overrides
+from unilab_jax.trainer import RunConfig, Trainer
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _recipe(script: str) -> dict:
+    spec = importlib.util.spec_from_file_location(script[:-3], os.path.join(ROOT, "experiments", script))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return dict(module.RECIPE)
+
+
+# Tiny C51 configurations (cart-pole returns: 0.98-discounted, <= 50; FlashSAC normalises rewards to
+# returns <= ~1). The learners are ~2.5x slower per step than SAC's, hence the lower ``utd``.
+_TINY = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 16,
+         "publish_every": 16, "learning_starts": 5_000, "replay_capacity": 1_000_000, "actor_learning_rate": 1e-3,
+         "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3, "gamma": 0.98, "tau": 0.02, "num_atoms": 51}
+FASTSAC_TINY = {**_TINY, "utd": 0.004, "v_min": -10.0, "v_max": 60.0, "weight_decay": 0.0}
+FLASHSAC_TINY = {**_TINY, "utd": 0.005, "v_min": -1.0, "v_max": 2.0}
+
+
+def _train(tmp_path, algo, recipe, total_steps, seed=0, eval_every=0, **run_kw):
+    module = algos.get(algo)
+    config = apply_overrides(module.Config(), recipe)
+    run = RunConfig(algo=algo, task="cartpole_balance", num_workers=2, envs_per_worker=16, total_steps=total_steps,
+                    seed=seed, logdir=str(tmp_path / f"{algo}_s{seed}"), eval_every=eval_every, **run_kw)
+    summary = Trainer(run, module, config, {}).train()
+    rows = [json.loads(line) for line in open(os.path.join(summary["logdir"], "metrics.jsonl"))]
+    return config, summary, rows
+
+
+def _check_replay_loop(config, summary, rows, total_steps):
+    assert summary["env_steps"] >= total_steps and not summary["interrupted"]
+    train = [r for r in rows if "loss/critic_loss" in r]
+    assert train and summary["updates"] == len(train)
+    assert all(math.isfinite(v) for r in train for k, v in r.items() if k.startswith("loss/"))
+    # The ratio is held: never more gradient steps than utd x (env steps since learning started).
+    assert max(r["perf/utd"] for r in train) <= config.utd * 1.05
+    assert "replay/size" in train[-1] and any(k.startswith("reward/") for k in train[-1])
+
+
+# Measured with these recipes (eval of 8-32 envs every 50-110k steps). SAC, seeds 0-2 (+ seed 0 here):
+# passes 150 at 250-300k env steps (~2k gradient steps, 10-12 s from start on an idle VM), 194-198 at
+# 450k. TD3 is noisier (its failures: the cart drifting off the rail), 8 runs over seeds 0-4: the best
+# evaluation passes 150 by 550k in 7 (the 8th peaked at 119 by 600k; the same seed rerun passed 150 at
+# 550k and 180 at 660k), the return at 600k ranged 115-200; seed 0 (used here) was >= 155 from 220k
+# on in all 3 of its runs and ended at 195-200. Thresholds: SAC's final return at 450k >= 150 (~45
+# margin); TD3's best evaluation >= 150 and its final one >= 100.
+# Test runtime: ~20 s (SAC) and ~25 s (TD3) on an idle VM, 35-40 s with other jobs on the 2 cores.
+@pytest.mark.parametrize("algo,script,steps", [("sac", "sac_cartpole.py", 450_000),
+                                               ("td3", "td3_cartpole.py", 600_000)])
+def test_sac_td3_learn_cartpole(tmp_path, algo, script, steps):
+    # eval_every 110k: evaluations at 110k..550k, never on the final step (the final checkpoint's).
+    config, summary, rows = _train(tmp_path, algo, _recipe(script), steps, eval_every=110_000 if algo == "td3" else 0)
+    _check_replay_loop(config, summary, rows, steps)
+    evals = [r["eval/return"] for r in rows if "eval/return" in r]
+    if algo == "sac":
+        assert summary["eval/return"] >= 150.0, summary
+    else:
+        assert max(evals) >= 150.0 and summary["eval/return"] >= 100.0, (evals, summary)
+
+
+# Measured at 500k env steps (~2k gradient steps), seeds 0 (this test), 1, 2: FastSAC 191, 178, 190;
+# FlashSAC 182, 198, 185 (both pass ~150 around 300-400k). Threshold 80: random ~35, observed minimum 178.
+# Test runtime: ~20-25 s each on an idle VM, 38-47 s with other jobs on the 2 cores.
+@pytest.mark.parametrize("algo,recipe", [("fastsac", FASTSAC_TINY), ("flashsac", FLASHSAC_TINY)])
+def test_fastsac_flashsac_improve_on_cartpole(tmp_path, algo, recipe):
+    config, summary, rows = _train(tmp_path, algo, recipe, 500_000)
+    _check_replay_loop(config, summary, rows, 500_000)
+    assert summary["eval/return"] >= 80.0, summary
+
+
+def test_budget_below_learning_starts_ends_cleanly(tmp_path):
+    """The ring never reaches learning_starts: the loop still ends at total_steps with a checkpoint."""
+    recipe = {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32, "learning_starts": 200_000,
+              "replay_capacity": 200_000}
+    _, summary, rows = _train(tmp_path, "sac", recipe, 3_000, eval_envs=2)
+    assert summary["updates"] == 0 and summary["env_steps"] >= 3_000 and not summary["interrupted"]
+    assert "eval/return" in summary
+    assert os.listdir(summary["checkpoints"]) and all("loss/critic_loss" not in r for r in rows)
+    assert any("replay/size" in r for r in rows)  # warm-up rows are logged while waiting
+
+
+def test_serial_replay_loop_holds_the_ratio(tmp_path):
+    recipe = {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32, "updates_per_call": 2,
+              "publish_every": 4, "learning_starts": 256, "replay_capacity": 4_096, "utd": 0.05}
+    config, summary, rows = _train(tmp_path, "td3", recipe, 2_000, serial=True, eval_envs=2)
+    _check_replay_loop(config, summary, rows, 2_000)
+    # Serial workers step only when the learner asks: the ratio is met, not merely bounded.
+    assert summary["updates"] * 2 >= 0.05 * (summary["env_steps"] - 256) * 0.8
+
+
+def test_noise_hold_redraws_every_n_steps_per_env():
+    from unilab_jax.runtime.worker import Worker
+
+    w = Worker.__new__(Worker)  # only the noise state (no task, no shared memory)
+    w.m, w.noise_hold = 4, 3
+    w.spec = type("Spec", (), {"action_dim": 2})()
+    w.rng = np.random.default_rng(0)
+    w._noise, w._noise_left = np.zeros((4, 2), np.float32), np.zeros(4, np.int64)
+    draws = [w._exploration_noise() for _ in range(5)]
+    np.testing.assert_array_equal(draws[0], draws[2])  # held for 3 steps...
+    assert not np.any(draws[2] == draws[3]) and np.array_equal(draws[3], draws[4])  # ...then redrawn
+    w._noise_left[1] = 0  # env 1's episode ended (what _step does): it alone draws again
+    nxt = w._exploration_noise()
+    assert not np.any(nxt[1] == draws[4][1]) and np.array_equal(np.delete(nxt, 1, 0), np.delete(draws[4], 1, 0))
+    assert draws[0].dtype == np.float32 and draws[0].shape == (4, 2)
+
+
+def _run_script(script, *args, timeout=600):
+    return subprocess.run([sys.executable, os.path.join(ROOT, "experiments", script), *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+# The walking recipes start learning at 16384 transitions: a 5000-step run collects, evaluates and
+# checkpoints without a gradient step, and exits 0 (~8 s each here).
+@pytest.mark.parametrize("script", ["fastsac_g1.py", "flashsac_go2.py"])
+def test_walking_recipe_runs_end_to_end(tmp_path, script):
+    logdir = str(tmp_path / script[:-3])
+    out = _run_script(script, "--total_steps=5000", "--num_workers=2", f"--logdir={logdir}")
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert glob.glob(os.path.join(logdir, "events.out.tfevents.*"))
+    steps = sorted(int(d) for d in os.listdir(os.path.join(logdir, "checkpoints")) if d.isdigit())
+    assert steps and steps[-1] >= 5000
+    summary = json.load(open(os.path.join(logdir, "summary.json")))
+    assert summary["env_steps"] >= 5000 and math.isfinite(summary["eval/return"])
