@@ -138,6 +138,7 @@ class Trainer:
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
         next_ckpt = counters["env_steps"] + run.checkpoint_every if run.checkpoint_every else None
         last_eval: dict[str, float] = {}
+        evaluated_at = -1  # env steps of the last periodic evaluation
         interrupted = False
         prefetch: _Prefetcher | None = None
         progress = ProgressBar(run.total_steps, counters["env_steps"])
@@ -173,6 +174,7 @@ class Trainer:
                 progress.update(counters["env_steps"], scalars.get("episode/return"))
                 if next_eval is not None and counters["env_steps"] >= next_eval:
                     evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
+                    evaluated_at = counters["env_steps"]
                     next_eval += run.eval_every
                     ckpt.save(counters["env_steps"], state, self._meta(counters))
                 if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
@@ -192,7 +194,7 @@ class Trainer:
             if prev_handler is not None:
                 signal.signal(signal.SIGTERM, prev_handler)
         interrupted = interrupted or self._stop.is_set()
-        if not interrupted:
+        if not interrupted and evaluated_at != counters["env_steps"]:
             evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
         last_eval = evaluator.close()
         self.logger.close()
