@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from unilab_jax import nets
+from unilab_jax.algos import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import MetricLogger, ProgressBar
 
 
@@ -284,12 +285,6 @@ class _Prefetcher:
         self._thread.join(timeout=10)
 
 
-_TRAJECTORY_FIELDS = ("obs", "critic_obs", "next_critic_obs", "action", "reward", "terminated", "truncated",
-                      "log_prob", "mean", "log_std")
-_REPLAY_FIELDS = ("obs", "critic_obs", "action", "reward", "next_obs", "next_critic_obs", "terminated",
-                  "truncated")
-
-
 class _TrajectorySource:
     """On-policy: one slot per worker (lock-step) or the next ready slots (async) per update."""
 
@@ -299,7 +294,7 @@ class _TrajectorySource:
     def produce(self, stop: threading.Event) -> tuple[dict, dict]:
         batch, info = self._pool.collect(timeout=600.0)
         t0 = time.perf_counter()
-        out = {k: self._xp.from_numpy(batch[k]) for k in _TRAJECTORY_FIELDS if k in batch}
+        out = {k: self._xp.from_numpy(batch[k]) for k in TRAJECTORY_FIELDS if k in batch}
         stats = _batch_stats(batch, self._terms)
         stats["scalars"].update({"perf/collect_wait_s": info["wait_s"], "perf/collect_copy_s": info["copy_s"],
                                  "perf/to_device_s": time.perf_counter() - t0})
@@ -381,7 +376,7 @@ class _ReplaySource:
         t1 = time.perf_counter()
         batch = pool.sample(u * b, self._rng)
         self._grad_steps += u
-        out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in _REPLAY_FIELDS}
+        out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in REPLAY_FIELDS}
         scalars = {"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1}
         return out, {"scalars": scalars, "episodes": 0}
 

@@ -43,15 +43,17 @@ import functools
 import math
 from collections.abc import Mapping
 from types import ModuleType
-from typing import Any, NamedTuple
+from typing import Any
 
 import mlx.core as mx
 import numpy as np
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
+from unilab_jax.algos import REPLAY_FIELDS as BATCH_FIELDS
 from unilab_jax.algos import sac, td3
-from unilab_jax.algos.sac import Norms
+from unilab_jax.algos.sac import Norms, SACState
+from unilab_jax.algos.td3 import TD3State
 from unilab_jax.core import normalizer, polyak
 from unilab_mlx import optim
 from unilab_mlx.ppo import _fill, state_to_numpy
@@ -61,36 +63,6 @@ __all__ = ["SACState", "TD3State", "SACFamilyLearner", "TD3Learner", "make_optim
 
 XP = shim.get("mlx")
 NP = shim.get("numpy")
-BATCH_FIELDS = ("obs", "critic_obs", "action", "reward", "next_obs", "next_critic_obs", "terminated", "truncated")
-
-
-class SACState(NamedTuple):
-    actor: Any
-    critic: Any  # twin critics, stacked ensemble (leading axis 2)
-    target_critic: Any
-    actor_opt: Any
-    critic_opt: Any
-    log_alpha: mx.array  # [] float32
-    alpha_opt: Any
-    obs_norm: normalizer.RunningStats
-    critic_norm: normalizer.RunningStats
-    reward_norm: normalizer.RunningStats  # D = 1 (FlashSAC reward normalisation; unused by SAC)
-    key: mx.array  # uint32[2]
-    steps: mx.array  # gradient steps so far (int32)
-
-
-class TD3State(NamedTuple):
-    actor: Any
-    critic: Any
-    target_actor: Any
-    target_critic: Any
-    actor_opt: Any
-    critic_opt: Any
-    obs_norm: normalizer.RunningStats
-    critic_norm: normalizer.RunningStats
-    explore_std: mx.array  # [] float32
-    key: mx.array
-    steps: mx.array
 
 
 def make_optimizer(learning_rate: float, weight_decay: float = 0.0,

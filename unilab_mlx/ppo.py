@@ -41,13 +41,14 @@ or optax.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import mlx.core as mx
 import numpy as np
 
 from unilab_jax import xp as shim
-from unilab_jax.algos import ppo
+from unilab_jax.algos import TRAJECTORY_FIELDS, ppo
+from unilab_jax.algos.ppo import TrainState
 from unilab_jax.core import normalizer
 from unilab_jax.core import ppo as ppo_core
 from unilab_mlx import optim
@@ -58,18 +59,7 @@ if TYPE_CHECKING:
 __all__ = ["TrainState", "Learner", "make_optimizer", "learning_rate", "state_from_numpy", "state_to_numpy"]
 
 XP = shim.get("mlx")
-# Fields of a trajectory batch the update reads ([T, B, ...]); others (e.g. policy_version) are ignored.
-BATCH_FIELDS = ("obs", "critic_obs", "next_critic_obs", "action", "reward", "terminated", "truncated",
-                "log_prob", "mean", "log_std")
-
-
-class TrainState(NamedTuple):
-    params: dict
-    opt_state: Any
-    obs_norm: normalizer.RunningStats
-    critic_norm: normalizer.RunningStats
-    key: mx.array  # uint32[2]
-    updates: mx.array  # number of learner updates so far (int32)
+BATCH_FIELDS = TRAJECTORY_FIELDS  # others (e.g. policy_version) are ignored
 
 
 def make_optimizer(config: ppo.PPOConfig) -> optim.GradientTransformation:

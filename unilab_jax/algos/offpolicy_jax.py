@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from types import ModuleType
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -30,42 +30,14 @@ import optax
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
+from unilab_jax.algos import REPLAY_FIELDS as BATCH_FIELDS
 from unilab_jax.algos import sac, td3
-from unilab_jax.algos.sac import Norms
+from unilab_jax.algos.sac import Norms, SACState
+from unilab_jax.algos.td3 import TD3State
 from unilab_jax.core import normalizer, polyak
 
 XP = shim.get("jax")
 NP = shim.get("numpy")
-BATCH_FIELDS = ("obs", "critic_obs", "action", "reward", "next_obs", "next_critic_obs", "terminated", "truncated")
-
-
-class SACState(NamedTuple):
-    actor: Any
-    critic: Any  # twin critics, stacked ensemble (leading axis 2)
-    target_critic: Any
-    actor_opt: Any
-    critic_opt: Any
-    log_alpha: jax.Array  # [] float32
-    alpha_opt: Any
-    obs_norm: normalizer.RunningStats
-    critic_norm: normalizer.RunningStats
-    reward_norm: normalizer.RunningStats  # D = 1: reward moments (reward normalisation; unused by SAC)
-    key: jax.Array
-    steps: jax.Array  # gradient steps so far (int32)
-
-
-class TD3State(NamedTuple):
-    actor: Any
-    critic: Any
-    target_actor: Any
-    target_critic: Any
-    actor_opt: Any
-    critic_opt: Any
-    obs_norm: normalizer.RunningStats
-    critic_norm: normalizer.RunningStats
-    explore_std: jax.Array  # [] float32, published to the workers
-    key: jax.Array
-    steps: jax.Array
 
 
 def init_on_numpy(init_params: Any, key: jax.Array, *args: Any, targets: tuple[str, ...] = ()) -> dict:

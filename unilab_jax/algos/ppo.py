@@ -8,7 +8,7 @@ The worker side (``act``) and the loss are written against the shim; the JAX lea
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, NamedTuple
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
@@ -41,6 +41,17 @@ class PPOConfig:
     normalize_advantages: bool = True
     normalize_obs: bool = True
     obs_clip: float = 10.0
+
+
+class TrainState(NamedTuple):
+    """The whole PPO/APPO training state (one pytree; arrays of the learner's platform)."""
+
+    params: dict
+    opt_state: Any
+    obs_norm: normalizer.RunningStats
+    critic_norm: normalizer.RunningStats
+    key: Any
+    updates: Any  # number of learner updates so far (int32)
 
 
 def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -11,24 +11,11 @@ import optax
 from tasks.base import TaskSpec
 from unilab_jax import xp as shim
 from unilab_jax.algos import ppo
+from unilab_jax.algos.ppo import TrainState
 from unilab_jax.core import normalizer
 from unilab_jax.core import ppo as ppo_core
 
 XP = shim.get("jax")
-# Fields of a trajectory batch the update reads ([T, B, ...]).
-BATCH_FIELDS = ("obs", "critic_obs", "next_critic_obs", "action", "reward", "terminated", "truncated",
-                "log_prob", "mean", "log_std", "policy_version")
-
-
-class TrainState(NamedTuple):
-    params: dict
-    opt_state: Any
-    obs_norm: normalizer.RunningStats
-    critic_norm: normalizer.RunningStats
-    key: jax.Array
-    updates: jax.Array  # number of learner updates so far (int32)
-
-
 def make_optimizer(config: ppo.PPOConfig) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
                        optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate))

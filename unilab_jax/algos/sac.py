@@ -109,6 +109,23 @@ def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
 # ---------------------------------------------------------------------------------------------
 # Networks
 # ---------------------------------------------------------------------------------------------
+class SACState(NamedTuple):
+    """Training state of SAC, FastSAC and FlashSAC (one pytree; arrays of the learner's platform)."""
+
+    actor: Any
+    critic: Any  # twin critics, stacked ensemble (leading axis 2)
+    target_critic: Any
+    actor_opt: Any
+    critic_opt: Any
+    log_alpha: Any  # [] float32
+    alpha_opt: Any
+    obs_norm: normalizer.RunningStats
+    critic_norm: normalizer.RunningStats
+    reward_norm: normalizer.RunningStats  # D = 1: reward moments (FlashSAC reward normalisation; unused by SAC)
+    key: Any
+    steps: Any  # gradient steps so far (int32)
+
+
 class Norms(NamedTuple):
     """Input/reward normalisation used by the losses.
 

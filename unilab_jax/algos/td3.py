@@ -21,7 +21,7 @@ Published weights: ``{"actor": mlp, "obs_norm": RunningStats, "explore_std": []}
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, NamedTuple
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
@@ -66,6 +66,22 @@ class TD3Config:
 
 
 Config = TD3Config
+
+
+class TD3State(NamedTuple):
+    """Training state of TD3 (one pytree; arrays of the learner's platform)."""
+
+    actor: Any
+    critic: Any
+    target_actor: Any
+    target_critic: Any
+    actor_opt: Any
+    critic_opt: Any
+    obs_norm: normalizer.RunningStats
+    critic_norm: normalizer.RunningStats
+    explore_std: Any  # [] float32, published to the workers
+    key: Any
+    steps: Any
 
 
 def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
