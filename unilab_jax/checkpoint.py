@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from unilab_jax import xp as shim
+from unilab_jax.runtime.shm import pid_alive
 
 FORMATS = ("orbax", "npz")
 FORMAT_ENV = "UNILAB_CHECKPOINT_FORMAT"  # forces the format new steps are written in
@@ -249,20 +250,8 @@ def _remove_dead_temp_dirs(directory: str) -> None:
         for tag in (_TMP_TAG, _DEL_TAG):
             if tag in name:
                 pid = name.split(tag, 1)[1].split("-", 1)[0]
-                if pid.isdigit() and not _pid_alive(int(pid)):
+                if pid.isdigit() and not pid_alive(int(pid)):
                     shutil.rmtree(os.path.join(directory, name), ignore_errors=True)
-
-
-def _pid_alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _encode(arr: np.ndarray) -> tuple[np.ndarray, str]:

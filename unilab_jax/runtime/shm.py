@@ -48,6 +48,7 @@ __all__ = [
     "ShmSpaceError",
     "cleanup_stale",
     "list_segments",
+    "pid_alive",
     "poison_value",
     "shm_dir",
 ]
@@ -285,7 +286,8 @@ def list_segments(prefix: str = PREFIX) -> list[str]:
     return sorted(n for n in os.listdir(d) if n.startswith(prefix))
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (on this machine; a pid of another user counts as alive)."""
     if pid <= 0:
         return False
     try:
@@ -312,7 +314,7 @@ def cleanup_stale(prefix: str = PREFIX, dry_run: bool = False) -> list[str]:
     removed = []
     for name in list_segments(prefix):
         pid = _creator_pid(name, prefix)
-        if pid is None or _pid_alive(pid):
+        if pid is None or pid_alive(pid):
             continue
         removed.append(name)
         if not dry_run:
