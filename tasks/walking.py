@@ -438,38 +438,67 @@ def walking_metric(task_name: str, weights: Any, act_fn: Callable[[Any, np.ndarr
 
     task = tasks.make(task_name, num_envs, seed=seed, overrides=overrides)
     try:
-        if not (hasattr(task, "command") and callable(getattr(task, "base_velocity", None))):
-            raise TypeError(f"task {task_name!r} exposes no command / base_velocity(): not a locomotion task")
         if steps is None:
             steps = round(seconds / task.spec.ctrl_dt) if seconds is not None else task.spec.episode_length
         if steps <= 0:
             raise ValueError(f"steps must be positive, got {steps}")
+        tracker = WalkingTracker(task)
         obs, _ = task.reset()
-        active = np.ones(num_envs, dtype=bool)
-        fell = np.zeros(num_envs, dtype=bool)
-        sums = np.zeros(4)  # tracking error, yaw error, command speed, command yaw rate
-        count = 0
         for _ in range(steps):
-            cmd = np.array(task.command, dtype=np.float64, copy=True)
-            out = task.step(np.asarray(act_fn(weights, obs), dtype=np.float32))
-            ended = out.terminated | out.truncated
-            fell |= active & out.terminated
-            ok = active & ~ended
-            if ok.any():
-                vel = task.base_velocity()[ok]
-                c = cmd[ok]
-                sums += [np.linalg.norm(c[:, :2] - vel[:, :2], axis=1).sum(), np.abs(c[:, 2] - vel[:, 2]).sum(),
-                         np.linalg.norm(c[:, :2], axis=1).sum(), np.abs(c[:, 2]).sum()]
-                count += int(ok.sum())
-            active &= ~ended
+            out = tracker.step(np.asarray(act_fn(weights, obs), dtype=np.float32))
             obs = out.obs
-            if not active.any():
+            if tracker.done:
                 break
     finally:
         task.close()
-    mean = sums / max(count, 1) if count else np.full(4, np.nan)
-    return {
-        "tracking_error": float(mean[0]), "yaw_rate_error": float(mean[1]),
-        "command_speed": float(mean[2]), "command_yaw_rate": float(mean[3]),
-        "fall_rate": float(fell.mean()), "evaluated_steps": count, "episodes": num_envs,
-    }
+    return tracker.result()
+
+
+class WalkingTracker:
+    """Accumulates ``walking_metric``'s numbers over each env's first episode while a caller steps the task
+    (the trainer's periodic evaluation uses it on the episodes it already runs).
+
+    ``step(action)`` steps the task and returns its ``StepOut``; ``result()`` gives the metric dictionary.
+    """
+
+    def __init__(self, task: Any):
+        if not is_locomotion(task):
+            raise TypeError(f"task {task.spec.name!r} exposes no command / base_velocity(): not a locomotion task")
+        self._task = task
+        m = task.num_envs
+        self.active = np.ones(m, dtype=bool)
+        self._fell = np.zeros(m, dtype=bool)
+        self._sums = np.zeros(4)  # tracking error, yaw error, command speed, command yaw rate
+        self._count = 0
+
+    @property
+    def done(self) -> bool:
+        return not self.active.any()
+
+    def step(self, action: np.ndarray) -> base.StepOut:
+        cmd = np.array(self._task.command, dtype=np.float64, copy=True)
+        out = self._task.step(action)
+        ended = out.terminated | out.truncated
+        self._fell |= self.active & out.terminated
+        ok = self.active & ~ended
+        if ok.any():
+            vel = self._task.base_velocity()[ok]
+            c = cmd[ok]
+            self._sums += [np.linalg.norm(c[:, :2] - vel[:, :2], axis=1).sum(), np.abs(c[:, 2] - vel[:, 2]).sum(),
+                           np.linalg.norm(c[:, :2], axis=1).sum(), np.abs(c[:, 2]).sum()]
+            self._count += int(ok.sum())
+        self.active &= ~ended
+        return out
+
+    def result(self) -> dict[str, float]:
+        mean = self._sums / self._count if self._count else np.full(4, np.nan)
+        return {
+            "tracking_error": float(mean[0]), "yaw_rate_error": float(mean[1]),
+            "command_speed": float(mean[2]), "command_yaw_rate": float(mean[3]),
+            "fall_rate": float(self._fell.mean()), "evaluated_steps": self._count, "episodes": len(self._fell),
+        }
+
+
+def is_locomotion(task: Any) -> bool:
+    """Whether ``task`` exposes what the walking metric reads (``command`` and ``base_velocity()``)."""
+    return hasattr(task, "command") and callable(getattr(task, "base_velocity", None))

@@ -29,6 +29,9 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     summary = json.load(open(os.path.join(logdir, "summary.json")))
     assert summary["env_steps"] >= 40000
     rows = [json.loads(line) for line in open(os.path.join(logdir, "metrics.jsonl"))]
+    evals = [r for r in rows if "eval/return" in r]
+    # Locomotion evaluations carry the walking metric (velocity tracking in m/s, fall rate in [0, 1]).
+    assert evals and all(r["eval/tracking_error"] > 0 and 0 <= r["eval/fall_rate"] <= 1 for r in evals)
     resumed = [r["step"] for r in rows[len(rows) // 2:] if "loss/policy_loss" in r]
     # The second run continues from the saved step: its first training row follows it directly.
     train_steps = [r["step"] for r in rows if "loss/policy_loss" in r]

@@ -96,26 +96,35 @@ class Trainer:
     def evaluate(self, weights: dict, seed: int) -> dict[str, float]:
         """Deterministic policy, one full episode in each of ``eval_envs`` environments."""
         import tasks
+        from tasks.walking import WalkingTracker, is_locomotion
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
                           overrides=self.task_overrides)
-        obs, _ = task.reset()
-        m = self.run.eval_envs
-        ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
-        alive = np.ones(m, dtype=bool)
-        zeros = np.zeros((m, self.spec.action_dim), np.float32)
-        for _ in range(self.spec.episode_length):
-            action, _ = self.algo.act(weights, obs, zeros, True)
-            out = task.step(np.asarray(action, np.float32))
-            ret += np.where(alive, out.reward, 0.0)
-            length += alive
-            alive &= ~(out.terminated | out.truncated)
-            obs = out.obs
-            if not alive.any():
-                break
-        task.close()
-        return {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
-                "eval/episode_length": float(length.mean())}
+        try:
+            walking = WalkingTracker(task) if is_locomotion(task) else None
+            step = walking.step if walking is not None else task.step
+            obs, _ = task.reset()
+            m = self.run.eval_envs
+            ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
+            alive = np.ones(m, dtype=bool)
+            zeros = np.zeros((m, self.spec.action_dim), np.float32)
+            for _ in range(self.spec.episode_length):
+                action, _ = self.algo.act(weights, obs, zeros, True)
+                out = step(np.asarray(action, np.float32))
+                ret += np.where(alive, out.reward, 0.0)
+                length += alive
+                alive &= ~(out.terminated | out.truncated)
+                obs = out.obs
+                if not alive.any():
+                    break
+        finally:
+            task.close()
+        result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
+                  "eval/episode_length": float(length.mean())}
+        if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
+            metric = walking.result()
+            result.update({f"eval/{k}": metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
+        return result
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
