@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from unilab_jax.runtime.buffers import TrajectoryBuffer
+from unilab_jax.runtime.buffers import ReplayBuffer, TrajectoryBuffer
 from unilab_jax.runtime.shm import SharedArrays
 from unilab_jax.runtime.weights import WeightChannel, WeightReader
 
@@ -113,5 +113,42 @@ def slot_producer(handle, worker: int, n_slots: int, timeout: float) -> None:
             views = buf.slot(worker, slot)
             fill_pattern(views, i)
             buf.publish(worker, slot)
+    finally:
+        buf.close()
+
+
+# ---- replay rings: every field of a row holds the row's value (worker * 100_000 + global index) --------
+def replay_value(worker: int, index: np.ndarray) -> np.ndarray:
+    return worker * 100_000 + np.asarray(index, dtype=np.int64)
+
+
+def write_replay_step(buf: ReplayBuffer, worker: int) -> None:
+    """One env step of ``worker``: its next M rows, each filled with its value, committed."""
+    value = replay_value(worker, buf.count(worker) + np.arange(buf.envs_per_worker))
+    _, views = buf.rows(worker)
+    for arr in views.values():
+        v = value.reshape(-1, *[1] * (arr.ndim - 1))
+        arr[...] = v % 2 == 1 if arr.dtype == bool else v
+    buf.commit(worker)
+
+
+def replay_rows_ok(batch: dict) -> np.ndarray:
+    """Per sampled row: True if every field holds the same value (the int64 field ``b``), i.e. not torn."""
+    value = batch["b"]
+    ok = np.ones(value.shape, dtype=bool)
+    for arr in batch.values():
+        v = value.reshape(-1, *[1] * (arr.ndim - 1))
+        want = v % 2 == 1 if arr.dtype == bool else v
+        ok &= (arr == want).reshape(len(value), -1).all(axis=1)
+    return ok
+
+
+def replay_writer(handle, worker: int, stop, timeout: float) -> None:
+    """Writes pattern steps into region ``worker`` as fast as it can until ``stop`` is set."""
+    buf = ReplayBuffer.attach(handle)
+    deadline = time.monotonic() + timeout
+    try:
+        while not stop.is_set() and time.monotonic() < deadline:
+            write_replay_step(buf, worker)
     finally:
         buf.close()

@@ -20,15 +20,32 @@ path, deterministic, debuggable with pdb.
 Worker processes use the ``spawn`` context. While they are started, the learner's ``__main__``
 module is hidden from multiprocessing so the children do not re-import the training script (which
 would import jax into every worker and slow its start); workers import only the runtime, the task
-and the algorithm module. A dead worker is noticed while the learner waits (exit code checked every
-``poll`` seconds) and raises :class:`WorkerDiedError` with the worker's traceback. ``close()``
-raises a shared stop flag, joins the workers (SIGKILL after a grace period) and unlinks every
-segment; it is idempotent and also runs from a ``weakref.finalize`` at exit.
+and the algorithm module. ``close()`` raises a shared stop flag, joins the workers (SIGKILL after a
+grace period) and unlinks every segment; it is idempotent and also runs from a ``weakref.finalize``
+at exit.
+
+Worker faults are handled while the learner waits on the pool (``collect``, ``sample``,
+``wait_replay``: every ``poll`` seconds), in the learner's consumer thread, so the recovery may touch
+the consumer side of the rings:
+
+* a worker that raised (status FAILED) raises :class:`WorkerDiedError` with its traceback at once:
+  a Python error is most likely deterministic, and respawning it would crash-loop;
+* a worker that died without reporting (SIGKILL, the OOM killer, a segfault in native code) is
+  respawned with a new seed, up to ``max_restarts`` times over the pool: the slot it was writing
+  goes back to its free ring (:meth:`TrajectoryBuffer.reclaim`), uncommitted replay rows are simply
+  never published, and a lock-step worker resumes after the last chunk it published, so a
+  ``collect`` in progress gets the new process's slot for the current weights;
+* a worker whose heartbeat has not moved for ``heartbeat_timeout`` seconds (SIGSTOP, a hang in
+  native code) is SIGKILLed (which works on stopped processes) and respawned the same way. Killing
+  rather than raising: a stopped or wedged process has no traceback to report and leaves exactly
+  the state a killed one does, so the run can go on; a hang that recurs exhausts ``max_restarts``
+  and then raises, naming the worker and its pid.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import importlib
 import logging
 import multiprocessing as mp
@@ -49,10 +66,17 @@ from unilab_jax.runtime.worker import (
     CHUNKS,
     EPISODES,
     FAILED,
+    HEARTBEAT,
     JAX,
+    NEW,
+    NONFINITE,
     PID,
+    READY,
+    RESUME_VERSION,
     STATUS,
+    STEP_LIMIT,
     STEPS,
+    STOP_FLAG,
     TERM_ROWS,
     TIMING,
     VERSION,
@@ -150,7 +174,7 @@ class _Resources:
         self.closed = True
         if self.control is not None:
             with contextlib.suppress(Exception):
-                self.control["flags"][0] = 1
+                self.control["flags"][STOP_FLAG] = 1
         deadline = time.monotonic() + grace
         for p in self.procs:
             p.join(max(0.0, deadline - time.monotonic()))
@@ -180,6 +204,13 @@ class WorkerPool:
       poll: how often waits check for dead workers, seconds.
       worker_threads: BLAS / OpenMP threads per worker process (1: no oversubscription). Serial
         mode runs with this process's settings.
+      max_restarts: respawns allowed over the pool's life for workers that died without a Python
+        error or stopped heartbeating; the next such death raises :class:`WorkerDiedError`.
+      heartbeat_timeout: seconds without a heartbeat after which a started worker counts as hung
+        (None: never). Workers beat every env step and every ``poll`` while waiting, so this only
+        has to exceed the slowest single env step or policy call.
+      max_env_steps: replay buffers only: workers stop stepping once the pool-wide env-step count
+        reaches it (see :meth:`set_step_limit`).
     """
 
     def __init__(
@@ -199,6 +230,9 @@ class WorkerPool:
         wait_timeout: float | None = None,
         poll: float = 0.05,
         worker_threads: int = 1,
+        max_restarts: int = 3,
+        heartbeat_timeout: float | None = 30.0,
+        max_env_steps: int | None = None,
     ):
         import tasks
 
@@ -223,6 +257,10 @@ class WorkerPool:
         self.algo_module = algo_module
         self.poll = float(poll)
         self.worker_threads = int(worker_threads)
+        self.max_restarts = int(max_restarts)
+        self.heartbeat_timeout = None if heartbeat_timeout is None else float(heartbeat_timeout)
+        if max_env_steps is not None and self.buffer_kind != "replay":
+            raise ValueError("max_env_steps is for replay buffers (trajectory workers are held by their slots)")
         self.fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
 
         stale = cleanup_stale()  # segments of runs whose creator was killed (kill -9 of the tree)
@@ -265,6 +303,11 @@ class WorkerPool:
         self._last_stats: tuple[float, int, np.ndarray, np.ndarray] | None = None
         self._last_death_check = 0.0
         self.version = -1
+        self._restarts = [0] * num_workers
+        self._held: list[set[int]] = [set() for _ in range(num_workers)]  # trajectory slots the learner holds
+        self._last_taken_version = [-1] * num_workers  # lockstep: version of the last slot taken per worker
+        self._beat = [(0, 0.0)] * num_workers  # (heartbeat word, when it last changed) per worker
+        self.set_step_limit(max_env_steps)
 
     # ---- lifecycle ----------------------------------------------------------------------------
     @property
@@ -284,9 +327,8 @@ class WorkerPool:
                 self._serial_workers.append(w)
                 self._res.closers.append(w)
         else:
-            with _hidden_main(), _worker_environment(self.worker_threads):
-                for i in range(self.num_workers):
-                    self._spawn(i)
+            for i in range(self.num_workers):
+                self._spawn(i)
             if wait:
                 status = self._ctl["worker"][:, STATUS]
                 wait_for(lambda: True if (status != 0).all() else None, timeout=timeout,
@@ -296,11 +338,16 @@ class WorkerPool:
         return self
 
     def _spawn(self, i: int) -> None:
-        # A respawn (later) would: reclaim the dead worker's slot, reset its status, and call this.
+        old = self._procs[i]
         p = self._ctx.Process(target=worker_main, args=(self._args[i],), name=f"unilab-worker-{i}", daemon=True)
-        p.start()
+        with _hidden_main(), _worker_environment(self.worker_threads):
+            p.start()
         self._procs[i] = p
-        self._res.procs.append(p)
+        if old in self._res.procs:
+            self._res.procs[self._res.procs.index(old)] = p
+        else:
+            self._res.procs.append(p)
+        self._beat[i] = (int(self._ctl["worker"][i, HEARTBEAT]), time.monotonic())
 
     def close(self, grace: float = 5.0) -> None:
         """Stops the workers (within ``grace`` s, then SIGKILL), unlinks every segment."""
@@ -318,24 +365,53 @@ class WorkerPool:
         self.close()
 
     def _check_workers(self) -> None:
-        """Raises :class:`WorkerDiedError` if a worker failed or exited."""
+        """Raises :class:`WorkerDiedError` for a failed worker; respawns killed or hung ones."""
         if self._res.closed:
             raise RuntimeError("the pool is closed")
         words = self._ctl["worker"]
+        now = time.monotonic()
         for i, p in enumerate(self._procs):
             if p is None:
                 continue
-            failed = words[i, STATUS] == FAILED
-            if failed or not p.is_alive():
-                if not failed:
-                    p.join(0.5)
-                code = p.exitcode
-                text = read_error(self._ctl, i)
-                raise WorkerDiedError(
-                    f"rollout worker {i} (pid {p.pid}) "
-                    + ("failed" if failed else f"exited with code {code}")
-                    + (f":\n{text}" if text else " without a traceback (killed?)")
-                )
+            alive = p.is_alive()
+            if not alive:
+                p.join(0.5)
+            if words[i, STATUS] == FAILED:  # read after is_alive: a worker reports before it exits
+                raise WorkerDiedError(f"rollout worker {i} (pid {p.pid}) failed:\n{read_error(self._ctl, i)}")
+            if not alive:
+                self._restart(i, f"exited with code {p.exitcode} without a traceback (killed?)")
+                continue
+            beat = int(words[i, HEARTBEAT])
+            if words[i, STATUS] != READY or beat != self._beat[i][0]:
+                self._beat[i] = (beat, now)  # still building its task, or alive
+            elif self.heartbeat_timeout is not None and now - self._beat[i][1] > self.heartbeat_timeout:
+                silent = now - self._beat[i][1]
+                p.kill()
+                p.join(5.0)
+                self._restart(i, f"sent no heartbeat for {silent:.1f} s (stopped or hung) and was killed")
+
+    def _restart(self, i: int, why: str) -> None:
+        """Respawns dead worker ``i`` after making its buffer state consistent (see module docstring)."""
+        old = self._procs[i]
+        total = sum(self._restarts)
+        if total >= self.max_restarts:
+            raise WorkerDiedError(f"rollout worker {i} (pid {old.pid}) {why}; the pool has respawned workers "
+                                  f"{total} times (max_restarts={self.max_restarts})")
+        log.warning("rollout worker %d (pid %d) %s; respawning it (restart %d of %d)", i, old.pid, why,
+                    total + 1, self.max_restarts)
+        words = self._ctl["worker"]
+        if isinstance(self.buffer, TrajectoryBuffer):
+            self.buffer.reclaim(i, self._held[i])
+            if self.sync == "lockstep":
+                versions = [int(self.buffer.slot(i, s)["policy_version"][0, 0]) for s in self.buffer.full[i].pending()]
+                words[i, RESUME_VERSION] = max([self._last_taken_version[i], *versions])
+        with contextlib.suppress(ValueError):
+            old.close()
+        self._ctl["error"][i] = 0
+        words[i, STATUS] = NEW
+        self._restarts[i] += 1
+        self._args[i] = dataclasses.replace(self._args[i], restarts=self._restarts[i])
+        self._spawn(i)
 
     def _maybe_check_workers(self) -> None:
         now = time.monotonic()
@@ -344,6 +420,23 @@ class WorkerPool:
             self._check_workers()
 
     # ---- weights ------------------------------------------------------------------------------
+    def set_step_limit(self, max_env_steps: int | None) -> None:
+        """Replay workers stop stepping once the pool-wide env-step count reaches ``max_env_steps``.
+
+        They never wait for the learner otherwise, so without a limit a small step budget overshoots
+        by whatever they collect while the learner compiles. Each worker checks before every env step,
+        so the count ends below ``max_env_steps + num_workers * envs_per_worker``. None: no limit.
+        Serial workers step only when asked and ignore it.
+        """
+        if max_env_steps is not None and self.buffer_kind != "replay":
+            raise ValueError("a step limit is for replay buffers")
+        self._ctl["flags"][STEP_LIMIT] = -1 if max_env_steps is None else max(int(max_env_steps), 0)
+
+    def step_limit_reached(self) -> bool:
+        """True once the env-step limit is set and reached (process workers then make no more steps)."""
+        limit = int(self._ctl["flags"][STEP_LIMIT])
+        return 0 <= limit <= self.env_steps()
+
     def publish(self, weights: Any, version: int) -> None:
         """Publishes a numpy weight pytree (same structure as the template) as ``version``."""
         self.weights.publish(weights, version)
@@ -387,13 +480,50 @@ class WorkerPool:
                              f"{buf.slots_per_worker} that exist (slots are released after the copy)")
         t0 = time.monotonic()
         taken: list[tuple[int, int, int]] = []  # (worker, sequence, slot)
+        try:
+            self._take_slots(buf, n, t0, timeout, taken)
+        except BaseException:
+            for w, _, slot in taken:  # nothing was copied: hand the slots back
+                self._release(buf, w, slot)
+            raise
+        wait_s = time.monotonic() - t0
+        taken.sort()
+        batch = out if out is not None else buf.empty_batch(n)
+        m = self.envs_per_worker
+        for j, (w, _, slot) in enumerate(taken):
+            buf.copy_slot(w, slot, batch, col=j * m)
+        for w, _, slot in taken:
+            self._release(buf, w, slot)
+        versions = batch["policy_version"]
+        info = {
+            "workers": [w for w, _, _ in taken],
+            "policy_version_min": int(versions.min()),
+            "policy_version_max": int(versions.max()),
+            "wait_s": wait_s,
+            "copy_s": time.monotonic() - t0 - wait_s,
+            "n_slots": n,
+        }
+        return batch, info
+
+    def _release(self, buf: TrajectoryBuffer, w: int, slot: int) -> None:
+        self._held[w].discard(slot)
+        buf.release(w, slot)
+
+    def _took(self, buf: TrajectoryBuffer, w: int, got: tuple[int, int], taken: list) -> None:
+        taken.append((w, got[1], got[0]))
+        self._held[w].add(got[0])
+        if self.sync == "lockstep":
+            self._last_taken_version[w] = int(buf.slot(w, got[0])["policy_version"][0, 0])
+
+    def _take_slots(self, buf: TrajectoryBuffer, n: int, t0: float, timeout: float, taken: list) -> None:
+        """Takes ``n`` verified full slots into ``taken`` (respawning dead workers while it waits)."""
         if self.sync == "lockstep":
             for w in range(self.num_workers):
                 if self.serial:
                     self._pump_serial(w)
                 got = wait_for(lambda w=w: buf.take(w), timeout=self._remaining(t0, timeout),
                                check=self._check_workers, poll=self.poll, what=f"slot from worker {w}")
-                taken.append((w, got[1], got[0]))
+                self._took(buf, w, got, taken)
         else:
             per_worker = np.zeros(self.num_workers, np.int64)
             rr = 0
@@ -420,26 +550,8 @@ class WorkerPool:
                         except RingTimeout:
                             pass
                         continue
-                taken.append((w, got[1], got[0]))
+                self._took(buf, w, got, taken)
                 per_worker[w] += 1
-        wait_s = time.monotonic() - t0
-        taken.sort()
-        batch = out if out is not None else buf.empty_batch(n)
-        m = self.envs_per_worker
-        for j, (w, _, slot) in enumerate(taken):
-            buf.copy_slot(w, slot, batch, col=j * m)
-        for w, _, slot in taken:
-            buf.release(w, slot)
-        versions = batch["policy_version"]
-        info = {
-            "workers": [w for w, _, _ in taken],
-            "policy_version_min": int(versions.min()),
-            "policy_version_max": int(versions.max()),
-            "wait_s": wait_s,
-            "copy_s": time.monotonic() - t0 - wait_s,
-            "n_slots": n,
-        }
-        return batch, info
 
     def _remaining(self, t0: float, timeout: float) -> float:
         left = timeout - (time.monotonic() - t0)
@@ -449,8 +561,8 @@ class WorkerPool:
 
     def _status_line(self) -> str:
         words = self._ctl["worker"]
-        return ", ".join(f"w{i}: steps={words[i, STEPS]} chunks={words[i, CHUNKS]} version={words[i, VERSION]}"
-                         for i in range(self.num_workers))
+        return ", ".join(f"w{i} (pid {words[i, PID]}): steps={words[i, STEPS]} chunks={words[i, CHUNKS]} "
+                         f"version={words[i, VERSION]} restarts={self._restarts[i]}" for i in range(self.num_workers))
 
     # ---- replay mode --------------------------------------------------------------------------
     def pump(self, steps: int = 1) -> int:
@@ -532,6 +644,8 @@ class WorkerPool:
             "chunks": int(words[:, CHUNKS].sum()),
             "worker_pids": words[:, PID].tolist(),
             "workers_with_jax": int(words[:, JAX].sum()),
+            "worker_restarts": sum(self._restarts),
+            "nonfinite_rows": int(words[:, NONFINITE].sum()),
         }
         timing = self._ctl["timing"].sum(axis=0)
         total = max(float(timing.sum()), 1e-9)

@@ -188,6 +188,25 @@ class SpscRing:
         """Blocks until an entry arrives; ``check()`` runs every ``poll`` s (and may raise)."""
         return wait_for(self.pop, timeout=timeout, check=check, poll=poll, what="ring entry")
 
+    # ---- recovery (one side's process is dead) ---------------------------------------------------
+    def recover_producer(self) -> bool:
+        """Completes a push whose producer died between its publishing store and its count update.
+
+        Without this a respawned producer would publish its next entry under the sequence the
+        consumer has already read, and the consumer would never accept it. Call only while no
+        producer runs. Returns True if a push was completed.
+        """
+        w = int(self.words[_TAIL])
+        e = int(self.entries[w & self._mask])
+        if e >= 0 and (e >> 32) == (w & _SEQ_MASK):
+            self.words[_TAIL] = w + 1
+            return True
+        return False
+
+    def pending(self) -> list[int]:
+        """Values published and not yet consumed (exact while one side is stopped)."""
+        return [int(self.entries[i & self._mask]) & _VAL_MASK for i in range(self.read_count, self.write_count)]
+
     def __len__(self) -> int:
         """Entries published and not yet consumed (a snapshot)."""
         return max(0, int(self.words[_TAIL]) - int(self.words[_HEAD]))

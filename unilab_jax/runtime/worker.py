@@ -15,6 +15,20 @@ learner process; both run the same code. Per *chunk* (``T`` control steps) it
 Only numpy, mujoco, the task and the algorithm module are imported here; never jax.
 Counters for monitoring (env steps, finished episodes, reward-term sums, status, errors) live in a
 small shared control segment that the learner reads in :meth:`WorkerPool.stats`.
+
+Faults the worker guards against itself:
+
+* **Non-finite values.** A row (one env's transition) with a NaN/Inf in any float field (obs,
+  critic obs, action, reward, reward terms, successors, the policy's extras) is zeroed and marked
+  truncated before it is published, so nothing non-finite reaches the learner and no return is
+  bootstrapped through it; the env is reset when the task offers ``reset_envs(idx) -> (obs,
+  critic_obs)`` (rows of ``idx``), and the rows are counted (``NONFINITE``). Tasks already truncate
+  their own MuJoCo divergences; this catches the rest (a policy with NaN weights, a buggy reward).
+* **Liveness.** :meth:`Worker._check` (run every step and every ``poll`` while waiting) bumps the
+  ``HEARTBEAT`` word, which the pool watches to find a stopped or hung worker.
+* **Step budget.** Replay workers never wait for the learner; when the pool sets an env-step limit
+  (``flags[STEP_LIMIT]``) they stop stepping once the pool-wide count reaches it (still heartbeating
+  and answering the stop flag).
 """
 
 from __future__ import annotations
@@ -37,8 +51,12 @@ from unilab_jax.runtime.weights import WeightReader
 
 __all__ = ["Worker", "WorkerArgs", "control_layout", "worker_main", "Stopped"]
 
-# Per-worker int64 words of the control segment ("worker" [W, 16]).
-STEPS, STATUS, PID, EPISODES, VERSION, CHUNKS, HEARTBEAT, W_READS, W_RETRIES, JAX, TERM_ROWS = range(11)
+# Per-worker int64 words of the control segment ("worker" [W, 16]). RESUME_VERSION is written by the
+# pool before it respawns a lockstep worker: the version of the last chunk that worker published.
+(STEPS, STATUS, PID, EPISODES, VERSION, CHUNKS, HEARTBEAT, W_READS, W_RETRIES, JAX, TERM_ROWS, NONFINITE,
+ RESUME_VERSION) = range(13)
+# Pool-wide words ("flags" [16]): the stop flag and the env-step limit (-1: none).
+STOP_FLAG, STEP_LIMIT = 0, 1
 # Status values.
 NEW, READY, STOPPED, FAILED = 0, 1, 2, 3
 ERROR_BYTES = 4096
@@ -65,8 +83,10 @@ def control_layout(num_workers: int, n_terms: int, episode_window: int = EPISODE
 
 def init_control(ctl: SharedArrays) -> None:
     ctl["flags"][:] = 0
+    ctl["flags"][STEP_LIMIT] = -1
     ctl["worker"][:] = 0
     ctl["worker"][:, VERSION] = -1
+    ctl["worker"][:, RESUME_VERSION] = -1
     ctl["term_sum"][:] = 0.0
     ctl["timing"][:] = 0.0
     ctl["error"][:] = 0
@@ -94,10 +114,12 @@ class WorkerArgs:
     control_handle: ShmHandle
     parent_pid: int
     wait_timeout: float | None = None  # None: wait for weights / slots until stopped
+    restarts: int = 0  # how often the pool has respawned this worker (a new seed each time)
 
     @property
     def worker_seed(self) -> int:
-        return self.seed * 1000 + self.worker_id
+        """A respawned worker must not replay the episodes (and noise) its predecessor already wrote."""
+        return self.seed * 1000 + self.worker_id + 1000003 * self.restarts
 
 
 class Worker:
@@ -113,14 +135,21 @@ class Worker:
         self._words = self.ctl["worker"][self.id]
         self._timing = self.ctl["timing"][self.id]
         self._words[PID] = os.getpid()
+        self._flags = self.ctl["flags"]
         if args.buffer_kind == "trajectory":
             self.traj: TrajectoryBuffer | None = TrajectoryBuffer.attach(args.buffer_handle)
             self.replay: ReplayBuffer | None = None
         else:
             self.traj, self.replay = None, ReplayBuffer.attach(args.buffer_handle)
+        fields = (self.traj or self.replay).fields
+        # Float fields checked for NaN/Inf per row (episode_return is derived from the masked reward).
+        self._finite_fields = [n for n, (shape, dt) in fields.items()
+                               if dt.kind == "f" and n != "episode_return" and int(np.prod(shape)) > 0]
+        self._nonfinite_logged = False
         self.weights = WeightReader(args.weights_handle)
         self.task = tasks.make(args.task_name, args.envs_per_worker, args.worker_seed, dict(args.task_overrides))
         self.spec = self.task.spec
+        self._reset_envs = getattr(self.task, "reset_envs", None)
         self.m = args.envs_per_worker
         self.rng = np.random.default_rng(np.random.SeedSequence([args.worker_seed, 0x5EED]))
         # Exploration noise held for NOISE_HOLD_STEPS control steps per env (an algorithm module's
@@ -133,7 +162,7 @@ class Worker:
         self.ep_length = np.zeros(self.m, np.int32)
         self.params: Any = None
         self.version = -1
-        self.chunk_version = -1  # version that produced the previous chunk
+        self.chunk_version = int(self._words[RESUME_VERSION])  # version that produced the previous chunk
         self._extras_checked = False
         self._last_parent_check = time.monotonic()
         self._words[JAX] = int("jax" in sys.modules)
@@ -141,15 +170,24 @@ class Worker:
 
     # ---- control ------------------------------------------------------------------------------
     def _check(self) -> None:
-        """Raises :class:`Stopped` when the pool stops us or the learner process is gone."""
-        if self.ctl["flags"][0]:
+        """Raises :class:`Stopped` when the pool stops us or the learner process is gone; heartbeats."""
+        if self._flags[STOP_FLAG]:
             raise Stopped()
+        self._words[HEARTBEAT] += 1
         now = time.monotonic()
         if now - self._last_parent_check > 1.0:
             self._last_parent_check = now
-            self._words[HEARTBEAT] = time.monotonic_ns()
             if self.args.parent_pid != os.getpid() and os.getppid() != self.args.parent_pid:
                 raise Stopped()
+
+    def _wait_for_budget(self) -> None:
+        """Blocks while the pool-wide env-step count is at the pool's limit (replay workers only)."""
+        t0 = time.perf_counter()
+        words = self.ctl["worker"]
+        while 0 <= int(self._flags[STEP_LIMIT]) <= int(words[:, STEPS].sum()):
+            self._check()
+            time.sleep(0.01)
+        self._timing[3] += time.perf_counter() - t0
 
     def _get_weights(self, block: bool) -> bool:
         """Loads the weights for a new chunk; False if (non-blocking) they are not there yet."""
@@ -195,8 +233,6 @@ class Worker:
         t2 = time.perf_counter()
         res = self.task.step(action)
         t3 = time.perf_counter()
-        if self.noise_hold > 1:
-            self._noise_left[np.logical_or(res.terminated, res.truncated)] = 0  # new episode: new draw
         out["reward"][...] = res.reward
         out["terminated"][...] = res.terminated
         out["truncated"][...] = res.truncated
@@ -205,18 +241,24 @@ class Worker:
         terms = out["reward_terms"]
         for i, name in enumerate(self.spec.reward_terms):
             terms[:, i] = res.reward_terms[name]
-        self.ep_return += res.reward
+        bad = self._mask_nonfinite(out)
+        ended = np.logical_or(out["terminated"], out["truncated"])
+        if self.noise_hold > 1:
+            self._noise_left[ended] = 0  # new episode: new draw
+        self.ep_return += out["reward"]
         self.ep_length += 1
         out["episode_return"][...] = self.ep_return
         out["episode_length"][...] = self.ep_length
         out["policy_version"][...] = self.version
         self.obs, self.critic_obs = res.obs, res.critic_obs
+        if bad is not None:
+            self._restart_envs(bad)
         # Monitoring counters (single-writer words; approximate reads are fine).
         ctl, w = self.ctl, self.id
         if self.spec.reward_terms:
             ctl["term_sum"][w, : len(self.spec.reward_terms)] += terms.sum(axis=0, dtype=np.float64)
         self._words[TERM_ROWS] += self.m
-        done = np.flatnonzero(np.logical_or(res.terminated, res.truncated))
+        done = np.flatnonzero(ended)
         if done.size:
             window = ctl["ep_return"].shape[1]
             n0 = int(self._words[EPISODES])
@@ -231,6 +273,41 @@ class Worker:
         timing[0] += t1 - t0
         timing[1] += t3 - t2
         timing[2] += (t2 - t1) + (time.perf_counter() - t3)
+
+    def _mask_nonfinite(self, out: dict[str, np.ndarray]) -> np.ndarray | None:
+        """Zeroes and truncates the rows of ``out`` holding a NaN/Inf; returns their env indices (or None).
+
+        One vectorised ``isfinite`` per field; the masking itself runs only when something is bad.
+        """
+        bad = None
+        names = []
+        for name in self._finite_fields:
+            ok = np.isfinite(out[name].reshape(self.m, -1)).all(axis=1)
+            if not ok.all():
+                bad = ~ok if bad is None else bad | ~ok
+                names.append(name)
+        if bad is None:
+            return None
+        for name in self._finite_fields:
+            out[name][bad] = 0
+        out["terminated"][bad] = False
+        out["truncated"][bad] = True
+        if not self._nonfinite_logged:
+            self._nonfinite_logged = True
+            sys.stderr.write(f"[unilab worker {self.id}] non-finite values in {names}: rows zeroed, episodes "
+                             "truncated (counted in the pool's nonfinite_rows; reported once)\n")
+            sys.stderr.flush()
+        return np.flatnonzero(bad)
+
+    def _restart_envs(self, idx: np.ndarray) -> None:
+        """Counts masked rows; resets their envs when the task can reset a subset of them."""
+        self._words[NONFINITE] += idx.size
+        if self._reset_envs is None:
+            return
+        obs, critic_obs = self._reset_envs(idx)
+        self.obs, self.critic_obs = np.array(self.obs, np.float32), np.array(self.critic_obs, np.float32)
+        self.obs[idx] = obs
+        self.critic_obs[idx] = critic_obs
 
     def _exploration_noise(self) -> np.ndarray:
         """Standard normal ``[M, A]``: a fresh draw every step, or each env's draw held for
@@ -280,6 +357,8 @@ class Worker:
         else:
             start_version = self.version
             for _ in range(t_len):
+                if block:
+                    self._wait_for_budget()
                 _, rows = self.replay.rows(self.id)
                 self._step(rows)
                 self.replay.commit(self.id)
