@@ -26,6 +26,12 @@ from absl import logging as absl_logging
 # the user's own value wins.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+# XLA's Triton GEMM autotuning made the first compile of the FastSAC update (batch 8192, 1024-wide C51
+# critics, 8 scanned gradient steps) exceed 150 s on an H100; with cuBLAS GEMMs it compiled in 40 s
+# (measured while another training run shared the machine; bench/results/README.md). CPU XLA accepts
+# and ignores the flag; the user's own setting of it wins.
+if "xla_gpu_enable_triton_gemm" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_gpu_enable_triton_gemm=false").strip()
 
 PLATFORMS = ("jax", "mlx")
 PROCESS_START = time.time()  # time-to-target clocks count from here (imports of jax etc. included)
@@ -43,6 +49,11 @@ flags.DEFINE_integer("eval_every", 0, "env steps between deterministic evaluatio
 flags.DEFINE_integer("eval_envs", 16, "environments in each evaluation")
 flags.DEFINE_integer("checkpoint_every", 0, "env steps between checkpoints (0: at evaluations and the end)")
 flags.DEFINE_bool("serial", False, "run the workers in the learner process (debugging)")
+flags.DEFINE_string("replay_dir", "", "off-policy: persistent replay store folder (write-through to disk, reopened "
+                    "by --resume; empty: shared memory only)")
+flags.DEFINE_float("replay_disk_gb", 10.0, "disk budget of --replay_dir; the oldest chunks are deleted past it")
+flags.DEFINE_float("replay_hot_fraction", 0.5, "with --replay_dir: share of each minibatch drawn from shared memory")
+flags.DEFINE_integer("replay_chunk_rows", 0, "with --replay_dir: transitions per committed chunk (0: ~16 MiB)")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
@@ -86,6 +97,18 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
     task_config = apply_overrides(tasks.default_config(task_name), task_overrides)  # rejects unknown keys
     task_overrides = {k: getattr(task_config, k) for k in task_overrides}
+    check = getattr(module, "check_run", None)  # an algorithm's own flag checks (platforms, task kind)
+    if check is not None:
+        try:
+            check(FLAGS.platform, task_config, config)
+        except ValueError as e:
+            raise FlagError(str(e)) from e
+    if FLAGS.replay_dir and module.BUFFER != "replay":
+        raise FlagError(f"--replay_dir: {algo} does not use a replay buffer")
+    if not 0.0 <= FLAGS.replay_hot_fraction <= 1.0:
+        raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {FLAGS.replay_hot_fraction}")
+    if FLAGS.replay_disk_gb <= 0 or FLAGS.replay_chunk_rows < 0:
+        raise FlagError("--replay_disk_gb must be positive and --replay_chunk_rows >= 0")
     batch = config.horizon * FLAGS.num_workers * FLAGS.envs_per_worker
     if module.BUFFER == "trajectory" and batch < config.num_minibatches:
         raise FlagError(f"a batch of {batch} transitions cannot make {config.num_minibatches} minibatches")
@@ -99,7 +122,9 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     run = RunConfig(algo=algo, task=task_name, platform=FLAGS.platform, num_workers=FLAGS.num_workers,
                     envs_per_worker=FLAGS.envs_per_worker, total_steps=total, seed=FLAGS.seed, logdir=logdir,
                     resume=FLAGS.resume, eval_every=FLAGS.eval_every, eval_envs=FLAGS.eval_envs,
-                    checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial)
+                    checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial, replay_dir=FLAGS.replay_dir,
+                    replay_disk_gb=FLAGS.replay_disk_gb, replay_hot_fraction=FLAGS.replay_hot_fraction,
+                    replay_chunk_rows=FLAGS.replay_chunk_rows)
     return run, module, config, task_overrides
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import queue
 import signal
@@ -22,6 +23,8 @@ import numpy as np
 from unilab_jax import nets
 from unilab_jax.algos import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import MetricLogger, ProgressBar
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +44,12 @@ class RunConfig:
     eval_envs: int = 16
     checkpoint_every: int = 0  # env steps between checkpoints (0: at evaluations and at the end)
     serial: bool = False  # run the workers in-process (debugging, deterministic tests)
+    # Persistent replay (off-policy algorithms; unilab_jax/runtime/replay_store.py): every transition is
+    # also written to a crash-safe store in replay_dir, which --resume reopens.
+    replay_dir: str = ""  # "" keeps replay in shared memory only
+    replay_disk_gb: float = 10.0  # disk budget of the store; the oldest chunks are deleted past it
+    replay_hot_fraction: float = 0.5  # share of each minibatch drawn from the shared-memory rings
+    replay_chunk_rows: int = 0  # transitions per committed chunk (0: ~16 MiB); a SIGKILL loses at most one
 
 
 def _learner_platform(platform: str) -> Any:
@@ -68,6 +77,7 @@ class Trainer:
         self.logger = MetricLogger(run.logdir)
         self.ckpt_dir = os.path.join(os.path.abspath(run.logdir), "checkpoints")
         self._stop = threading.Event()
+        self._resumed_meta: dict[str, Any] = {}  # meta of the checkpoint this run resumed from
 
     # -- state -----------------------------------------------------------------------------------
     def _init_state(self) -> tuple[Any, dict[str, int]]:
@@ -81,16 +91,52 @@ class Trainer:
                 raise FileNotFoundError(f"--resume: no checkpoint under {self.ckpt_dir}")
             state, meta = ckpt.restore(state, lambda a, like: self.xp.from_numpy(a))
             ckpt.close()
+            self._resumed_meta = meta
             counters = {k: int(v) for k, v in meta["counters"].items()}
             if meta.get("task") != self.run.task or meta.get("algo") != self.run.algo:
                 raise ValueError(f"--resume: checkpoint is {meta.get('algo')}/{meta.get('task')}, "
                                  f"not {self.run.algo}/{self.run.task}")
         return state, counters
 
-    def _meta(self, counters: dict[str, int]) -> dict[str, Any]:
-        return {"counters": dict(counters), "algo": self.run.algo, "task": self.run.task,
+    def _meta(self, counters: dict[str, int], source: Any = None) -> dict[str, Any]:
+        meta = {"counters": dict(counters), "algo": self.run.algo, "task": self.run.task,
                 "run": dataclasses.asdict(self.run), "config": dataclasses.asdict(self.config),
                 "task_overrides": {k: str(v) for k, v in self.task_overrides.items()}}
+        replay = source.checkpoint_meta() if source is not None else None
+        if replay is not None:
+            meta["replay"] = replay
+        return meta
+
+    def _open_replay_store(self) -> Any:
+        """The persistent replay store of ``run.replay_dir`` (None when off).
+
+        A fresh run refuses a store that already holds transitions (of an earlier run: pass
+        ``--resume``), and any run refuses a store of another task.
+        """
+        run = self.run
+        if not run.replay_dir:
+            return None
+        from unilab_jax.runtime.buffers import transition_layout
+        from unilab_jax.runtime.replay_store import ReplayStore
+
+        fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
+        store = ReplayStore(run.replay_dir, {k: fields[k] for k in REPLAY_FIELDS}, chunk_rows=run.replay_chunk_rows,
+                            max_bytes=int(run.replay_disk_gb * 1e9), info={"task": run.task, "algo": run.algo})
+        problem = None
+        if store.info.get("task") != run.task:
+            problem = f"it holds transitions of task {store.info.get('task')!r}"
+        elif store.committed and not run.resume:
+            problem = (f"it already holds {store.committed} transitions of an earlier run; pass --resume to "
+                       "continue that run, or choose an empty directory")
+        if problem:
+            store.close()
+            raise ValueError(f"replay_dir={run.replay_dir!r}: {problem}")
+        recorded = (self._resumed_meta.get("replay") or {}).get("store_committed")
+        if recorded is not None and store.committed != recorded:
+            log.warning("replay store %s: %d transitions committed, the checkpoint recorded %d (%s)", run.replay_dir,
+                        store.committed, recorded, "kept: written after the checkpoint" if store.committed > recorded
+                        else "chunks were lost or the directory changed")
+        return store
 
     # -- evaluation ------------------------------------------------------------------------------
     def evaluate(self, weights: dict, seed: int) -> dict[str, float]:
@@ -136,12 +182,15 @@ class Trainer:
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
         replay = self.algo.BUFFER == "replay"
+        # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
+        store = self._open_replay_store() if replay else None
         pool = WorkerPool(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
                           envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
                           algo_module=self.algo.__name__, weight_template=weights,
                           horizon=getattr(cfg, "horizon", 32), serial=run.serial,
                           replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
-                          if replay else 0)
+                          if replay else 0,
+                          max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
         ckpt = Checkpointer(self.ckpt_dir)
         prev_handler = signal.signal(signal.SIGTERM, self._on_sigterm) \
             if threading.current_thread() is threading.main_thread() else None
@@ -151,13 +200,15 @@ class Trainer:
         evaluated_at = -1  # env steps of the last periodic evaluation
         interrupted = False
         prefetch: _Prefetcher | None = None
+        source: _ReplaySource | _TrajectorySource | None = None
         progress = ProgressBar(run.total_steps, counters["env_steps"])
         try:
             pool.start()
             pool.publish(weights, counters["version"])
-            source = (_ReplaySource(pool, self.xp, cfg, counters, run.seed) if replay
-                      else _TrajectorySource(pool, self.xp, self.spec.reward_terms))
-            prefetch = _Prefetcher(source.produce)
+            source = (_ReplaySource(pool, self.xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
+                                    self._resumed_meta.get("replay"))
+                      if replay else _TrajectorySource(pool, self.xp, self.spec.reward_terms))
+            prefetch = _Prefetcher(source.produce, inline=run.serial)
             t_last, steps_last = time.time(), counters["env_steps"]
             while counters["env_steps"] < run.total_steps and not self._stop.is_set():
                 t_wait = time.perf_counter()
@@ -186,9 +237,9 @@ class Trainer:
                     evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
                     evaluated_at = counters["env_steps"]
                     next_eval += run.eval_every
-                    ckpt.save(counters["env_steps"], state, self._meta(counters))
+                    ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                 if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
-                    ckpt.save(counters["env_steps"], state, self._meta(counters))
+                    ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                     next_ckpt += run.checkpoint_every
         except KeyboardInterrupt:
             interrupted = True
@@ -196,11 +247,15 @@ class Trainer:
             progress.close()
             if prefetch is not None:
                 prefetch.stop()
+            if source is not None:
+                source.stop()  # the last spill to disk, while the rings still exist
             pool.close()
             if prefetch is not None:
                 prefetch.join()
-            ckpt.save(counters["env_steps"], state, self._meta(counters))
+            ckpt.save(counters["env_steps"], state, self._meta(counters, source))
             ckpt.close()
+            if store is not None:
+                store.close()
             if prev_handler is not None:
                 signal.signal(signal.SIGTERM, prev_handler)
         interrupted = interrupted or self._stop.is_set()
@@ -249,14 +304,20 @@ class _AsyncEvaluator:
 
 class _Prefetcher:
     """Runs ``produce()`` in a thread, one item ahead, so collection, sampling and the host-to-device
-    copy overlap with the learner's update. Errors surface in the learner thread."""
+    copy overlap with the learner's update. Errors surface in the learner thread.
 
-    def __init__(self, produce: Any, depth: int = 1):
+    ``inline`` (serial mode): ``produce`` runs in the caller's thread instead, so a serial run is one
+    deterministic sequence of env steps, samples, updates and weight publications; in a thread the
+    next batch's env steps would race the publication of the weights they should use.
+    """
+
+    def __init__(self, produce: Any, depth: int = 1, inline: bool = False):
         self._produce = produce
         self._queue: queue.Queue = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="prefetch", daemon=True)
-        self._thread.start()
+        self._thread = None if inline else threading.Thread(target=self._loop, name="prefetch", daemon=True)
+        if self._thread is not None:
+            self._thread.start()
 
     def _loop(self) -> None:
         try:
@@ -275,6 +336,11 @@ class _Prefetcher:
                 self._queue.put(e)
 
     def get(self) -> tuple[dict, dict]:
+        if self._thread is None:
+            item = self._produce(self._stop)
+            if item is None:
+                raise RuntimeError("the batch source was stopped")
+            return item
         while True:
             try:
                 item = self._queue.get(timeout=0.5)
@@ -291,7 +357,8 @@ class _Prefetcher:
         self._stop.set()
 
     def join(self) -> None:
-        self._thread.join(timeout=10)
+        if self._thread is not None:
+            self._thread.join(timeout=10)
 
 
 class _TrajectorySource:
@@ -321,13 +388,20 @@ class _TrajectorySource:
     def pool_scalars(self) -> dict[str, float]:
         return _worker_scalars(self._pool.stats())
 
+    def checkpoint_meta(self) -> None:
+        """Nothing to add to a checkpoint: slots are collected afresh after a restart."""
+        return None
+
+    def stop(self) -> None:
+        """Nothing to flush."""
+
 
 class _ReplaySource:
     """Off-policy: workers fill the replay ring on their own; the learner samples [U, B] batches,
     holding the update-to-data ratio at ``utd`` gradient steps per env step, and publishes weights
     every ``publish_every`` gradient steps.
 
-    * Warm-up: no gradient step before the ring holds ``max(learning_starts, batch_size)``
+    * Warm-up: no gradient step before the buffer holds ``max(learning_starts, batch_size)``
       transitions. While waiting, ``produce`` hands the loop an empty batch (``{}``, a no-op for the
       learner) every ``_TICK_S`` seconds, so the loop keeps logging, evaluating and checking its
       env-step budget: a run whose ``total_steps`` is smaller than ``learning_starts`` ends cleanly
@@ -337,22 +411,54 @@ class _ReplaySource:
       on the small initial buffer.
     * The ratio is an upper bound: async workers never wait for the learner, so a learner slower than
       ``utd x`` the env rate runs below it (``perf/utd`` logs the ratio reached).
+    * Batch ``k`` of the run (``k`` = the update counter) is sampled with a generator seeded by
+      ``(seed, k)``, and checkpoints record the ratio's bookkeeping, so a resumed run samples and
+      paces exactly as an uninterrupted one (a batch the prefetcher drew but the loop never used is
+      drawn again after the restart).
+    * With a persistent store (``--replay_dir``): before sampling, the rows the workers committed
+      since the last call are copied to the store (:class:`RingSpiller`, once each); minibatches mix
+      the rings (``hot_fraction``) and the disk (:class:`TieredSampler`); a checkpoint first commits
+      everything received so far (the store's cursor goes into its record). After ``--resume`` the
+      rings start empty and the disk tier alone can start learning at once, where the bookkeeping
+      left off. Without a store, a resumed run warms up again and counts the ratio afresh.
     """
 
     _TICK_S = 0.25  # seconds between no-op items while the ring warms up
+    _RNG_TAG = 0x5A4D  # keeps the sampling stream apart from other streams derived from the run seed
 
-    def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int):
+    def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int, store: Any = None,
+                 hot_fraction: float = 0.5, saved: dict[str, Any] | None = None):
         self._pool, self._xp, self._cfg = pool, xp, cfg
-        self._rng = np.random.default_rng(seed + 7919 * counters["updates"])
+        self._seed = seed % 2**32
         self._steps0 = counters["env_steps"]  # env steps before this process (resume)
-        self._grad_steps = 0
-        self._since_publish = 0
-        self._learn_steps0: int | None = None  # pool env steps when learning started
+        self._updates0 = counters["updates"]  # batches used before this process: the next batch's RNG index
+        saved = saved or {}
+        self._learn_start: int | None = saved.get("learn_start")  # run env steps when learning started
+        self._grad_steps = int(saved.get("grad_steps", 0))  # gradient steps since then (produced)
+        self._since_publish = int(saved.get("since_publish", 0))
+        self._produced = self._consumed = 0  # batches made / used by the loop in this process
+        self._warm = self._waited = False
         self._need = max(int(cfg.learning_starts), int(cfg.batch_size))
+        self._lock = threading.RLock()  # the sampling thread vs checkpoints and shutdown in the main thread
+        self._stopped = False
+        self._store, self._spiller, self._tiers = store, None, None
+        if store is not None:
+            from unilab_jax.runtime.replay_store import RingSpiller, TieredSampler
+
+            self._spiller = RingSpiller(pool.buffer, store)
+            self._tiers = TieredSampler(pool.replay_size, lambda n, rng: pool.sample(n, rng, serial_steps=0), store,
+                                        hot_fraction, REPLAY_FIELDS)
         capacity = pool.num_workers * pool.buffer.capacity
         if self._need > capacity:
             raise ValueError(f"learning_starts/batch_size ({self._need}) exceed the replay capacity ({capacity} "
                              f"transitions over {pool.num_workers} workers): raise replay_capacity")
+
+    def _env_steps(self) -> int:
+        return self._steps0 + self._pool.env_steps()
+
+    def _sampleable(self) -> int:
+        hot = self._pool.replay_size()
+        return hot if self._store is None else max(hot, self._store.size)
 
     def _wait_tick(self) -> None:
         """One short wait for data: serial mode steps the in-process workers, process mode sleeps
@@ -367,34 +473,51 @@ class _ReplaySource:
     def produce(self, stop: threading.Event) -> tuple[dict, dict] | None:
         cfg, pool = self._cfg, self._pool
         u, b = cfg.updates_per_call, cfg.batch_size
-        if self._learn_steps0 is None:
+        noop = {}, {"scalars": {}, "episodes": 0, "noop": True}
+        if not self._warm:
             t_end = time.monotonic() + self._TICK_S
-            while pool.replay_size() < self._need:
+            while self._sampleable() < self._need:
+                self._waited = True
                 if stop.is_set():
                     return None
                 if time.monotonic() >= t_end:
-                    return {}, {"scalars": {}, "episodes": 0, "noop": True}
+                    return noop
                 self._wait_tick()
-            self._learn_steps0 = pool.env_steps()
+            self._warm = True
+            if self._learn_start is None or self._waited:  # (re)starting from a buffer that had to fill
+                self._learn_start, self._grad_steps = self._env_steps(), 0
         # Hold the update-to-data ratio: wait for data rather than over-train on a small buffer.
         t0 = time.perf_counter()
-        while self._grad_steps + u > cfg.utd * (pool.env_steps() - self._learn_steps0):
+        while self._grad_steps + u > cfg.utd * (self._env_steps() - self._learn_start):
             if stop.is_set():
                 return None
+            if pool.step_limit_reached():  # capped workers will not bring the data: let the loop end
+                return noop
             self._wait_tick()
         t1 = time.perf_counter()
-        batch = pool.sample(u * b, self._rng)
+        rng = np.random.default_rng([self._seed, self._RNG_TAG, self._updates0 + self._produced])
+        with self._lock:
+            if self._stopped:
+                return None
+            if self._store is None:
+                batch = pool.sample(u * b, rng)
+            else:
+                pool.pump(1)  # serial mode: the env step pool.sample takes on the ring-only path
+                self._spiller.spill()
+                batch = self._tiers.sample(u, b, rng)
         self._grad_steps += u
+        self._produced += 1
         out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in REPLAY_FIELDS}
         scalars = {"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1}
         return out, {"scalars": scalars, "episodes": 0}
 
     def advance(self, counters: dict[str, int], stats: dict) -> bool:
-        counters["env_steps"] = self._steps0 + self._pool.env_steps()
+        counters["env_steps"] = self._env_steps()
         if stats.get("noop"):  # warm-up tick: no gradient step happened, nothing to publish
             counters["updates"] -= 1
             return False
-        learned_on = max(self._pool.env_steps() - (self._learn_steps0 or 0), 1)
+        self._consumed += 1
+        learned_on = max(self._env_steps() - (self._learn_start or 0), 1)
         stats["scalars"]["perf/utd"] = self._grad_steps / learned_on
         self._since_publish += self._cfg.updates_per_call
         if self._since_publish >= self._cfg.publish_every:
@@ -402,9 +525,45 @@ class _ReplaySource:
             return True
         return False
 
+    def _persist(self) -> None:
+        """Copies every committed ring row to the store and commits them (the rings must be open)."""
+        with self._lock:
+            if self._store is not None and not self._stopped:
+                self._spiller.spill()
+                self._store.flush()
+
+    def checkpoint_meta(self) -> dict[str, Any]:
+        """The sampling bookkeeping as of the batches the loop has used (not the one prefetched), and
+        the store's cursor after committing everything received so far."""
+        self._persist()
+        in_flight = self._produced - self._consumed
+        meta: dict[str, Any] = {"learn_start": self._learn_start, "since_publish": self._since_publish,
+                                "grad_steps": max(self._grad_steps - in_flight * self._cfg.updates_per_call, 0)}
+        if self._store is not None:
+            meta.update({"store_dir": self._store.directory, "store_committed": self._store.committed,
+                         "store_size": self._store.size, "spill_lost": self._spiller.lost})
+        return meta
+
+    def stop(self) -> None:
+        """Final commit to the store, then no more access to the rings (the pool closes next). A
+        failing commit is logged, not raised: the checkpoint that follows matters more."""
+        with self._lock:
+            try:
+                self._persist()
+            except Exception:  # a full disk, say: still close the pool and write the checkpoint
+                log.exception("replay store: the final commit failed; the last chunk is lost")
+            self._stopped = True
+
     def pool_scalars(self) -> dict[str, float]:
         st = self._pool.stats()
-        out = {"replay/size": float(st.get("replay_size", 0)), **_worker_scalars(st)}
+        hot = float(st.get("replay_size", 0))
+        out = {"replay/size": hot, **_worker_scalars(st)}
+        if self._store is not None:
+            disk = self._store.size
+            # Rings and disk overlap (every ring row is written through): distinct rows ~ the larger tier.
+            out.update({"replay/size": float(max(hot, disk + self._store.pending)), "replay/size_hot": hot,
+                        "replay/size_disk": float(disk), "replay/disk_committed": float(self._store.committed),
+                        "replay/disk_gb": self._store.disk_bytes / 1e9, "replay/spill_lost": float(self._spiller.lost)})
         if st["recent_episode_returns"].size:
             out["episode/return"] = st["episode_return_mean"]
             out["episode/length"] = st["episode_length_mean"]
@@ -414,7 +573,8 @@ class _ReplaySource:
 
 def _worker_scalars(stats: dict[str, Any]) -> dict[str, float]:
     """Worker throughput and where worker time goes (act / task / write / wait fractions)."""
-    out = {"perf/worker_env_steps_per_s": stats["env_steps_per_s"]}
+    out = {"perf/worker_env_steps_per_s": stats["env_steps_per_s"],
+           "perf/worker_restarts": stats["worker_restarts"], "perf/nonfinite_rows": stats["nonfinite_rows"]}
     out.update({f"perf/worker_{k}_fraction": v for k, v in stats["worker_time_fraction"].items()})
     return out
 
