@@ -15,10 +15,16 @@ an episode return is close to ``episode_length`` (200 by default).
 Termination: the cart leaves the rail (|x| > ``rail_limit``) or the pole tilts past
 ``max_angle`` rad. A uniform random policy ends after a few dozen steps; a good policy runs the full
 ``episode_length`` (then the episode is truncated, not terminated).
+
+Domain randomisation (off by default; sampled once per env): motor strength (the actuator gear times
+``U(dr_motor_strength)``) and pole mass (mass and inertia times ``U(dr_pole_mass_scale)``). The factors
+are the task's ``extrinsics [M, 2]`` (layout ``motor_strength``, ``pole_mass_scale``; ones when off): a
+cheap privileged vector for teacher/student methods.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import mujoco
@@ -50,6 +56,8 @@ class CartpoleConfig:
     scale_small_control: float = 0.1
     scale_small_velocity: float = 0.1
     physics_engine: str = "rollout"  # "rollout" or "step" (see tasks/physics.py)
+    dr_motor_strength: tuple[float, float] = (1.0, 1.0)  # gear scale range; (1, 1): off
+    dr_pole_mass_scale: tuple[float, float] = (1.0, 1.0)  # pole mass/inertia scale range; (1, 1): off
 
 
 def default_config() -> CartpoleConfig:
@@ -123,14 +131,39 @@ class CartpoleBalance(base.Task):
         if nsub < 1 or abs(nsub * config.sim_dt - config.ctrl_dt) > 1e-9:
             raise ValueError(f"ctrl_dt {config.ctrl_dt} must be a multiple of sim_dt {config.sim_dt}")
         self.model = build_spec(config).compile()
-        self.sim = BatchedSim(self.model, num_envs, nsub, engine=config.physics_engine)
+        self._rng = np.random.Generator(np.random.Philox(self.seed))
+        self.dr = self._sample_dr()
+        self.extrinsics_layout = tuple((k, 1) for k in sorted(self.dr))
+        self.extrinsics = np.concatenate([self.dr[k] for k in sorted(self.dr)], axis=1).astype(np.float32)
+        randomized = any(hi > lo for lo, hi in (config.dr_motor_strength, config.dr_pole_mass_scale))
+        self.sim = BatchedSim(self.model, num_envs, nsub, engine=config.physics_engine,
+                              models=self._apply_dr() if randomized else None)
         self.scales = reward_scales(config)
         self.spec = base.TaskSpec(
             name="cartpole_balance", obs_dim=5, critic_obs_dim=5, action_dim=1,
             episode_length=config.episode_length, ctrl_dt=config.ctrl_dt, reward_terms=REWARD_TERMS,
+            privileged_dim=self.extrinsics.shape[1],
         )
-        self._rng = np.random.Generator(np.random.Philox(self.seed))
         self.steps = np.zeros(num_envs, dtype=np.int64)
+
+    def _sample_dr(self) -> dict[str, np.ndarray]:
+        """Per-env factors [M, 1]; a range of zero width draws nothing (the random stream is unchanged)."""
+        c, m = self.config, self.num_envs
+        out = {}
+        for name, (lo, hi) in (("motor_strength", c.dr_motor_strength), ("pole_mass_scale", c.dr_pole_mass_scale)):
+            out[name] = self._rng.uniform(lo, hi, size=(m, 1)) if hi > lo else np.full((m, 1), float(lo))
+        return out
+
+    def _apply_dr(self) -> list[mujoco.MjModel]:
+        base_m, pole = self.model, self.model.body("pole").id
+        models = []
+        for i in range(self.num_envs):
+            mi = copy.copy(base_m)
+            mi.actuator_gear[0, 0] = base_m.actuator_gear[0, 0] * self.dr["motor_strength"][i, 0]
+            mi.body_mass[pole] = base_m.body_mass[pole] * self.dr["pole_mass_scale"][i, 0]
+            mi.body_inertia[pole] = base_m.body_inertia[pole] * self.dr["pole_mass_scale"][i, 0]
+            models.append(mi)
+        return models
 
     def _reset_envs(self, idx: np.ndarray) -> None:
         n, r = idx.size, self.config.reset_noise

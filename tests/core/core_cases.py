@@ -12,7 +12,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from unilab_jax.core import c51, distributions, gae, normalizer, polyak, ppo, sac, td3, vtrace
+from unilab_jax import nets_temporal
+from unilab_jax.core import c51, distributions, gae, him, hora, normalizer, polyak, ppo, sac, td3, vtrace
 
 T, B, A, K, D = 12, 8, 4, 21, 5
 
@@ -70,6 +71,22 @@ def _c51_inputs(rng):
     return np.linspace(-5.0, 5.0, K), probs, _n(rng, B, scale=2.0), np.where(rng.random(B) < 0.2, 0.0, 0.99)
 
 
+def _unit(rng, *shape):
+    x = rng.normal(size=shape)
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def _conv_params(rng, k, c_in, c_out):
+    return {"w": _n(rng, k, c_in, c_out, scale=0.4), "b": _n(rng, c_out, scale=0.1)}
+
+
+def _adaptation_inputs(rng, frames=16, d=D):
+    params = {"embed": [{"w": _n(rng, d, 8, scale=0.4), "b": _n(rng, 8, scale=0.1)}],
+              "convs": [_conv_params(rng, 4, 8, 6), _conv_params(rng, 3, 6, 6)],
+              "proj": [{"w": _n(rng, 6 * 5, 3, scale=0.3), "b": _n(rng, 3, scale=0.1)}]}
+    return params, _n(rng, B, frames, d)
+
+
 CASES = [
     Case("gaussian_log_prob", distributions.gaussian_log_prob, lambda r: ((_n(r, B, A), *_gauss(r)), {})),
     Case("gaussian_entropy", distributions.gaussian_entropy, lambda r: ((_gauss(r)[1],), {})),
@@ -111,5 +128,15 @@ CASES = [
     Case("categorical_mean", c51.categorical_mean, lambda r: ((_n(r, B, K), np.linspace(-5.0, 5.0, K)), {})),
     Case("normalizer", _normalizer_pipeline, lambda r: ((*_stats(r), _n(r, 11, D)), {})),
     Case("polyak", polyak.polyak, lambda r: (_polyak_trees(r), {"tau": 0.005})),
+    Case("l2_normalize", him.l2_normalize, lambda r: ((_n(r, B, A, scale=3.0),), {})),
+    Case("sinkhorn", him.sinkhorn, lambda r: ((_unit(r, 16, A) @ _unit(r, 6, A).T,), {"n_iters": 3, "eps": 0.05})),
+    Case("sinkhorn_many_iters", him.sinkhorn,
+         lambda r: ((_n(r, 10, 5, scale=0.5),), {"n_iters": 10, "eps": 0.5})),
+    Case("swapped_prediction_loss", him.swapped_prediction_loss,
+         lambda r: ((_unit(r, 16, A), _unit(r, 16, A), _unit(r, 6, A)), {"temperature": 3.0})),
+    Case("velocity_loss", him.velocity_loss, lambda r: ((_n(r, B, 3), _n(r, B, 3)), {})),
+    Case("adaptation_loss", hora.adaptation_loss, lambda r: ((np.tanh(_n(r, B, A)), np.tanh(_n(r, B, A))), {})),
+    Case("conv1d", nets_temporal.conv1d, lambda r: ((_conv_params(r, 4, 3, 5), _n(r, B, 11, 3)), {"stride": 2})),
+    Case("adaptation_module", nets_temporal.adaptation_apply, lambda r: (_adaptation_inputs(r), {})),
 ]
 CASE_IDS = [c.name for c in CASES]

@@ -23,6 +23,9 @@ _ALGORITHMS: dict[str, str] = {
     "td3": "unilab_jax.algos.td3",
     "fastsac": "unilab_jax.algos.fastsac",
     "flashsac": "unilab_jax.algos.flashsac",
+    "hora_teacher": "unilab_jax.algos.hora_teacher",
+    "hora_student": "unilab_jax.algos.hora_student",
+    "him_ppo": "unilab_jax.algos.him_ppo",
 }
 
 

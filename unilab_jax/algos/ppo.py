@@ -8,6 +8,7 @@ The worker side (``act``) and the loss are written against the shim; the JAX lea
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from unilab_jax import nets
@@ -99,8 +100,14 @@ def value(params: dict, critic_norm: Any, critic_obs: Any) -> Any:
     return v[..., 0]
 
 
+# An actor maps (params, obs_norm, obs [..., obs_dim]) to the Gaussian's (mean, log_std) [..., A].
+# Variants that change what the policy sees (HORA's teacher, HIM-PPO) pass their own to the
+# functions below and reuse the rest of PPO unchanged.
+Actor = Callable[[dict, Any, Any], tuple[Any, Any]]
+
+
 def vtrace_targets(params: dict, obs_norm: Any, critic_norm: Any, batch: dict,
-                   config: PPOConfig) -> tuple[Any, Any, Any, Any, Any]:
+                   config: PPOConfig, actor: Actor | None = None) -> tuple[Any, Any, Any, Any, Any]:
     """APPO targets for a [T, B] batch: values, V-trace policy-gradient advantages, vs, and the
     current policy's mean and log_std.
 
@@ -110,7 +117,7 @@ def vtrace_targets(params: dict, obs_norm: Any, critic_norm: Any, batch: dict,
     xp = shim.namespace(batch["reward"])
     values = value(params, critic_norm, batch["critic_obs"])
     next_values = value(params, critic_norm, batch["next_critic_obs"])
-    mean, log_std = _actor(params, obs_norm, batch["obs"])
+    mean, log_std = (actor or _actor)(params, obs_norm, batch["obs"])
     target_log_prob = distributions.gaussian_log_prob(batch["action"], mean, log_std)
     terminated = xp.astype(batch["terminated"], xp.float32)
     done = xp.maximum(terminated, xp.astype(batch["truncated"], xp.float32))
@@ -124,19 +131,21 @@ FLAT_FIELDS = ("obs", "critic_obs", "action", "log_prob", "mean", "log_std")
 
 
 def minibatch_source(params: dict, obs_norm: Any, critic_norm: Any, batch: dict, config: PPOConfig,
-                     use_vtrace: bool) -> tuple[dict, dict]:
+                     use_vtrace: bool, actor: Actor | None = None,
+                     extra_fields: tuple[str, ...] = ()) -> tuple[dict, dict]:
     """Targets for a [T, B] batch, flattened to [N = T*B, ...] for minibatching, plus metrics.
 
     With V-trace (APPO) the KL reference (``mean``/``log_std``) is the policy at the start of this
     update, not the stale behaviour policy: the KL-adaptive learning rate measures how far this
-    update moves the policy, whatever the lag of the data.
+    update moves the policy, whatever the lag of the data. ``extra_fields`` are batch fields
+    flattened into the minibatches besides PPO's own (e.g. ``next_critic_obs`` for an auxiliary loss).
     """
     xp = shim.namespace(batch["reward"])
     t, b = batch["reward"].shape
     n = t * b
-    flat = {k: xp.reshape(batch[k], (n, *batch[k].shape[2:])) for k in FLAT_FIELDS}
+    flat = {k: xp.reshape(batch[k], (n, *batch[k].shape[2:])) for k in FLAT_FIELDS + tuple(extra_fields)}
     if use_vtrace:
-        values, adv, ret, mean, log_std = vtrace_targets(params, obs_norm, critic_norm, batch, config)
+        values, adv, ret, mean, log_std = vtrace_targets(params, obs_norm, critic_norm, batch, config, actor)
         flat.update(mean=xp.reshape(mean, flat["mean"].shape), log_std=xp.reshape(log_std, flat["log_std"].shape))
     else:
         values, adv, ret = advantages(params, critic_norm, batch, config)
@@ -151,14 +160,15 @@ def _actor(params: dict, obs_norm: Any, obs: Any) -> tuple[Any, Any]:
 
 
 def loss(params: dict, obs_norm: Any, critic_norm: Any, mb: dict, config: PPOConfig,
-         asymmetric_clip: bool = False) -> tuple[Any, dict]:
+         asymmetric_clip: bool = False, actor: Actor | None = None) -> tuple[Any, dict]:
     """PPO (or, with ``asymmetric_clip``, APPO) loss on a flat minibatch of N transitions.
 
     ``mb`` fields are [N, ...]: obs, critic_obs, action, log_prob, mean, log_std (behaviour
-    policy), advantages, returns, values (at collection).
+    policy), advantages, returns, values (at collection). ``actor``: the policy head (default:
+    the MLP on the normalised observation).
     """
     xp = shim.namespace(mb["obs"])
-    mean, log_std = _actor(params, obs_norm, mb["obs"])
+    mean, log_std = (actor or _actor)(params, obs_norm, mb["obs"])
     new_log_prob = distributions.gaussian_log_prob(mb["action"], mean, log_std)
     entropy = distributions.gaussian_entropy(log_std)
     new_values = value(params, critic_norm, mb["critic_obs"])

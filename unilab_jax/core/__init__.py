@@ -5,7 +5,7 @@ Every function here takes arrays (numpy, jax or mlx -- the backend is found from
 arrays (e.g. ``eps``), never through a global generator. Shapes are stated in each docstring; time
 series are time-major ``[T, B]``. Import the modules you need::
 
-    from unilab_jax.core import gae, ppo, vtrace, distributions, sac, td3, c51, normalizer, polyak
+    from unilab_jax.core import gae, ppo, vtrace, distributions, sac, td3, c51, normalizer, polyak, him, hora
 
 Nothing is imported eagerly here, so ``import unilab_jax.core`` stays numpy-only and cheap.
 """

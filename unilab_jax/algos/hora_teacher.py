@@ -1,0 +1,67 @@
+"""HORA stage 1: a PPO teacher whose policy sees the current frame and z = tanh(mlp(extrinsics)).
+
+Lock-step PPO on trajectory slots (exactly PPO's schedule and update, see ``ppo_jax.Learner``'s
+hooks); only the policy input differs. Needs a ``<task>_hist`` task with ``history_extrinsics=True``
+(``tasks/history.py``); ``history_len=1`` is enough. The critic sees the task's critic observation,
+to which that variant appends the extrinsics. Published weights: ``{"actor", "encoder", "log_std",
+"obs_norm"}``. JAX learner only (see ``check_run``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from unilab_jax import xp as shim
+from unilab_jax.algos import hora
+from unilab_jax.algos.ppo import PPOConfig, extras
+from unilab_jax.core import distributions
+
+SYNC = "lockstep"
+BUFFER = "trajectory"
+PLATFORMS = ("jax",)
+
+__all__ = ["SYNC", "BUFFER", "Config", "act", "extras", "make_learner", "check_run", "check_spec"]
+
+
+@dataclasses.dataclass(frozen=True)
+class HoraTeacherConfig(PPOConfig):
+    """PPO's hyperparameters plus the extrinsics encoder (HORA: MLP 256-128-8, tanh output)."""
+
+    encoder_hidden: tuple[int, ...] = (256, 128)
+    z_dim: int = 8
+
+
+Config = HoraTeacherConfig
+
+
+def act(weights: dict[str, Any], obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
+    """Gaussian policy on [frame, z]. obs [M, H d + p], noise [M, A] -> action [M, A], PPO's extras."""
+    xp = shim.namespace(obs)
+    mean, log_std = hora.teacher_actor(weights, weights["obs_norm"], obs)
+    action = mean if deterministic else mean + xp.exp(log_std) * noise
+    log_prob = distributions.gaussian_log_prob(action, mean, log_std)
+    return action, {"log_prob": log_prob, "mean": mean, "log_std": log_std}
+
+
+def check_run(platform: str, task_config: Any, config: Any) -> None:
+    """Flag checks before anything starts (``cli.build_run``): ValueError with the reason."""
+    if platform not in PLATFORMS:
+        raise ValueError(f"hora_teacher has a learner for --platform={'/'.join(PLATFORMS)} only, not {platform!r}")
+    if not getattr(task_config, "history_extrinsics", False):
+        raise ValueError("hora_teacher needs a task variant with extrinsics in the observation: a '<task>_hist' task "
+                         "(tasks/history.py) with history_extrinsics=True")
+
+
+def check_spec(spec: Any) -> None:
+    if not getattr(spec, "extrinsics_in_obs", False):
+        raise ValueError(f"hora_teacher needs a '<task>_hist' task with history_extrinsics=True, got {spec.name!r}")
+
+
+def make_learner(platform: str, config: HoraTeacherConfig, spec: Any):
+    check_spec(spec)
+    if platform == "jax":
+        from unilab_jax.algos.hora_jax import TeacherLearner
+
+        return TeacherLearner(config, spec)
+    raise ValueError(f"hora_teacher has no learner for platform {platform!r} (JAX only)")
