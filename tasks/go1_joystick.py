@@ -32,11 +32,13 @@ with ``scene_mjx_feetonly_flat_terrain.xml`` and ``randomize.py``), rebuilt on t
   Termination: torso up-vector z < 0. Time limit 1000 steps (truncation).
 * Domain randomisation (sampled once per env at construction, like brax's DR wrapper): floor
   friction U(0.4, 1.0), joint frictionloss x U(0.9, 1.1), armature x U(1.0, 1.05), torso COM
-  + U(+-0.05) m, all body masses x U(0.9, 1.1), torso mass + U(+-1) kg, default pose + U(+-0.05).
+  + U(+-0.05) m, all body masses x U(0.9, 1.1), torso mass + U(+-1) kg, default pose + U(+-0.05);
+  optionally motor strength (``dr_motor_strength``: each motor's PD torque, i.e. Kp and Kd, scaled by a
+  per-motor factor; off by default, which keeps Playground parity and the random stream unchanged).
   The parameters live in numpy arrays (``self.dr``) and, flattened, in ``self.extrinsics``
   ``[M, privileged_dim]`` float32 for teacher/student methods (``self.extrinsics_layout`` names
   the columns: armature_scale 12, com_offset 3, default_pose_offset 12, floor_friction 1,
-  frictionloss_scale 12, mass_scale 13 (bodies 1..13), torso_mass_delta 1).
+  frictionloss_scale 12, mass_scale 13 (bodies 1..13), motor_strength 12, torso_mass_delta 1).
   Deviation: Playground jitters ``model.qpos0``, which no Go1 dynamics reads (a no-op). Here the
   offset is also added to the motor targets (a joint-calibration error; observations and rewards
   keep the nominal default pose), so the parameter means something to a teacher/student method;
@@ -53,7 +55,9 @@ the 5 substeps where that measured faster (see ``tasks/physics.py``); Playground
 sensors after the last one, and the dynamics are unchanged (bit-identical, tested).
 
 The observation/reward math below is module-level pure functions on batched arrays written
-against the shim (``xp = shim.namespace(...)``), so an MJX variant can reuse it with jax arrays.
+against the shim (``xp = shim.namespace(...)``): ``read_sensors``, ``step_math`` (everything a step
+computes after the physics), ``place_base`` and ``sample_command`` are what ``tasks/mjx_go1.py`` runs
+on jax arrays, so the MJX variant is this MDP.
 """
 
 from __future__ import annotations
@@ -152,6 +156,7 @@ class Go1JoystickConfig:
     dr_link_mass_scale: tuple[float, float] = (0.9, 1.1)
     dr_torso_mass_delta: float = 1.0
     dr_default_pose_offset: float = 0.05
+    dr_motor_strength: tuple[float, float] = (1.0, 1.0)  # per-motor PD torque scale; (1, 1): off (parity)
     physics_engine: str = "rollout"  # "rollout" or "step" (tasks/physics.py)
     sensors_every_substep: bool = False  # False: skip sensors on inner substeps where faster
     integrator: str = "euler"  # DESIGN.md: Euler; Playground's newest XML uses "implicitfast"
@@ -505,6 +510,90 @@ def sample_command(old, uniform, keep_nonzero, replace):
     return xp.where(replace, new, old)
 
 
+def sensor_index(model: mujoco.MjModel) -> dict[str, tuple[int, int]]:
+    """``{sensor name: (adr, dim)}`` into ``sensordata``; the same layout in MuJoCo and MJX."""
+    return {model.sensor(i).name: (int(model.sensor_adr[i]), int(model.sensor_dim[i])) for i in range(model.nsensor)}
+
+
+def read_sensors(sensordata, index: dict[str, tuple[int, int]], nu: int) -> dict:
+    """The named sensor readings the task math uses, from batched ``sensordata [M, nsensordata]``.
+
+    ``feet_vel [M, 4, 3]`` and ``feet_z [M, 4]`` in FEET order, ``contact [M, 4]`` bool (the contact
+    sensors' "found" count > 0), ``actuator_force [M, nu]``, ``gravity [M, 3]`` from the IMU quaternion.
+    """
+    xp = shim.namespace(sensordata)
+
+    def get(name):
+        adr, dim = index[name]
+        return sensordata[:, adr : adr + dim]
+
+    out = {k: get(k) for k in ("gyro", "local_linvel", "accelerometer", "upvector", "global_linvel",
+                               "global_angvel", "orientation")}
+    out["feet_vel"] = xp.stack([get(f"{f}_global_linvel") for f in FEET], axis=1)
+    out["feet_z"] = xp.stack([get(f"{f}_pos")[:, 2] for f in FEET], axis=1)
+    out["contact"] = xp.stack([get(f"{f}_floor_found")[:, 0] for f in FEET], axis=1) > 0
+    adr0 = min(adr for name, (adr, _) in index.items() if name.endswith("_force"))
+    out["actuator_force"] = sensordata[:, adr0 : adr0 + nu]
+    out["gravity"] = gravity_from_quat(out["orientation"])
+    return out
+
+
+def observe(s, joint_pos, joint_vel, last_act, command, last_contact, air_time, default_pose, noise):
+    """(actor obs [M, 48], critic obs [M, 123]) from sensor readings ``s`` (``read_sensors``) and task state."""
+    obs = actor_obs(s["local_linvel"], s["gyro"], s["gravity"], joint_pos, joint_vel, last_act, command,
+                    default_pose, noise)
+    cobs = critic_obs(obs, s["gyro"], s["accelerometer"], s["gravity"], s["local_linvel"], s["global_angvel"],
+                      joint_pos, joint_vel, default_pose, s["actuator_force"], last_contact, s["feet_vel"], air_time)
+    return obs, cobs
+
+
+def step_math(s, joint_pos, joint_vel, action, info, noise, consts, config: Go1JoystickConfig, scales, dt: float):
+    """Everything a control step computes after the physics, in Playground's order; shared by the CPU
+    task and the MJX variant (``tasks/mjx_go1.py``), so both are one MDP.
+
+    ``info``: the per-env episode state before the step (``command``, ``last_act``, ``feet_air_time``,
+    ``last_contact``, ``swing_peak``); ``consts``: ``default_pose``, ``pose_weight``, ``soft_lower``,
+    ``soft_upper``; ``noise [M, 33]`` the observation noise already scaled. Returns (next_obs, next_cobs,
+    done [M] bool, scaled terms, reward [M], the updated foot/action entries of ``info``). Command
+    resampling is left to the caller (it draws random numbers conditionally).
+    """
+    contact = s["contact"]
+    first_contact, air_time, swing_peak = feet_contact_update(
+        contact, info["last_contact"], info["feet_air_time"], info["swing_peak"], s["feet_z"], dt
+    )
+    next_obs, next_cobs = observe(s, joint_pos, joint_vel, info["last_act"], info["command"], info["last_contact"],
+                                  air_time, consts["default_pose"], noise)
+    done = terminated(s["upvector"])
+    terms = reward_terms(
+        command=info["command"], local_linvel=s["local_linvel"], gyro=s["gyro"], global_linvel=s["global_linvel"],
+        global_angvel=s["global_angvel"], upvector=s["upvector"], joint_pos=joint_pos, joint_vel=joint_vel,
+        default_pose=consts["default_pose"], pose_weight=consts["pose_weight"], actuator_force=s["actuator_force"],
+        action=action, last_act=info["last_act"], done=done, feet_vel=s["feet_vel"], feet_z=s["feet_z"],
+        contact=contact, first_contact=first_contact, air_time=air_time, swing_peak=swing_peak,
+        soft_lower=consts["soft_lower"], soft_upper=consts["soft_upper"], tracking_sigma=config.tracking_sigma,
+        max_foot_height=config.max_foot_height,
+    )
+    scaled = scale_terms(terms, scales, dt)
+    reward = total_reward(scaled)
+    # Bookkeeping after the reward (Playground's order).
+    updated = {"last_act": action, "feet_air_time": air_time * ~contact, "last_contact": contact,
+               "swing_peak": swing_peak * ~contact}
+    return next_obs, next_cobs, done, scaled, reward, updated
+
+
+def place_base(init_qpos, dxy, yaw, base_vel, nv: int):
+    """Reset states from draws: base xy ``init + dxy [n, 2]``, yaw ``yaw [n]`` composed with the initial
+    orientation, base linear/angular velocity ``base_vel [n, 6]``, joint velocities 0 (free joint first)."""
+    xp = shim.namespace(dxy, yaw, base_vel)
+    n = yaw.shape[0]
+    init = xp.broadcast_to(init_qpos, (n, init_qpos.shape[-1]))
+    zeros = xp.zeros_like(yaw)
+    qyaw = xp.stack([xp.cos(yaw / 2), zeros, zeros, xp.sin(yaw / 2)], axis=-1)
+    qpos = xp.concat([init[:, 0:2] + dxy, init[:, 2:3], quat_mul(init[:, 3:7], qyaw), init[:, 7:]], axis=-1)
+    qvel = xp.concat([base_vel, xp.zeros((n, nv - 6), dtype=base_vel.dtype)], axis=-1)
+    return qpos, qvel
+
+
 # --------------------------------------------------------------------------------------------------
 # The numpy task
 # --------------------------------------------------------------------------------------------------
@@ -512,14 +601,10 @@ def random_base_states(init_qpos, nv: int, n: int, rng: np.random.Generator, xy:
                        base_vel: float) -> tuple[np.ndarray, np.ndarray]:
     """``n`` reset states around ``init_qpos`` (free joint first): base xy + U(+-xy), yaw U(+-yaw) composed
     with the initial orientation, base linear/angular velocity U(+-base_vel), joint velocities 0."""
-    qpos = np.tile(init_qpos, (n, 1))
-    qpos[:, 0:2] += rng.uniform(-xy, xy, size=(n, 2))
+    dxy = rng.uniform(-xy, xy, size=(n, 2))
     yaws = rng.uniform(-yaw, yaw, size=n)
-    qyaw = np.stack([np.cos(yaws / 2), np.zeros(n), np.zeros(n), np.sin(yaws / 2)], axis=-1)
-    qpos[:, 3:7] = quat_mul(qpos[:, 3:7], qyaw)
-    qvel = np.zeros((n, nv))
-    qvel[:, 0:6] = rng.uniform(-base_vel, base_vel, size=(n, 6))
-    return qpos, qvel
+    vel = rng.uniform(-base_vel, base_vel, size=(n, 6))
+    return place_base(np.asarray(init_qpos, dtype=np.float64), dxy, yaws, vel, nv)
 
 
 def finish_step(next_obs, next_cobs, reward, scaled, done, unstable, at_limit, reset_and_observe):
@@ -576,7 +661,7 @@ class Go1JoystickFlat(base.Task):
         self.soft_upper = uppers * c.soft_joint_pos_limit_factor
         self.floor_id = m.geom("floor").id
         self.torso_id = m.body("trunk").id
-        self._sensor = {m.sensor(i).name: (m.sensor_adr[i], m.sensor_dim[i]) for i in range(m.nsensor)}
+        self._sensor = sensor_index(m)
         self._noise_scale = noise_scales(c)
         self.scales = reward_scales(c)
         self._cmd_a = np.array(c.command_a)
@@ -612,8 +697,9 @@ class Go1JoystickFlat(base.Task):
                 "floor_friction": np.full((M, 1), 0.6), "frictionloss_scale": np.ones((M, 12)),
                 "armature_scale": np.ones((M, 12)), "com_offset": np.zeros((M, 3)),
                 "mass_scale": np.ones((M, nb)), "torso_mass_delta": np.zeros((M, 1)),
-                "default_pose_offset": np.zeros((M, 12)),
+                "default_pose_offset": np.zeros((M, 12)), "motor_strength": np.ones((M, 12)),
             }
+        lo, hi = c.dr_motor_strength
         return {
             "floor_friction": r.uniform(*c.dr_floor_friction, size=(M, 1)),
             "frictionloss_scale": r.uniform(*c.dr_frictionloss_scale, size=(M, 12)),
@@ -624,6 +710,8 @@ class Go1JoystickFlat(base.Task):
             "default_pose_offset": r.uniform(
                 -c.dr_default_pose_offset, c.dr_default_pose_offset, size=(M, 12)
             ),
+            # Drawn last and only when enabled, so the other draws (and parity runs) are unchanged.
+            "motor_strength": r.uniform(lo, hi, size=(M, 12)) if hi > lo else np.full((M, 12), lo),
         }
 
     def _extrinsics(self) -> np.ndarray:
@@ -643,6 +731,8 @@ class Go1JoystickFlat(base.Task):
             mi.body_mass[1:] = base_m.body_mass[1:] * dr["mass_scale"][i]
             mi.body_mass[self.torso_id] += dr["torso_mass_delta"][i, 0]
             mi.qpos0[7:] = base_m.qpos0[7:] + dr["default_pose_offset"][i]
+            mi.actuator_gainprm[:, 0] = base_m.actuator_gainprm[:, 0] * dr["motor_strength"][i]
+            mi.actuator_biasprm[:, 1:3] = base_m.actuator_biasprm[:, 1:3] * dr["motor_strength"][i][:, None]
             models.append(mi)
         return models
 
@@ -652,16 +742,21 @@ class Go1JoystickFlat(base.Task):
         return self.sim.sensordata[:, adr : adr + dim]
 
     def _sensors(self) -> dict[str, np.ndarray]:
-        sd = self.sim.sensordata
-        out = {k: self._s(k) for k in ("gyro", "local_linvel", "accelerometer", "upvector", "global_linvel",
-                                       "global_angvel", "orientation")}
-        out["feet_vel"] = np.stack([self._s(f"{f}_global_linvel") for f in FEET], axis=1)
-        out["feet_z"] = np.stack([self._s(f"{f}_pos")[:, 2] for f in FEET], axis=1)
-        out["contact"] = np.stack([self._s(f"{f}_floor_found")[:, 0] for f in FEET], axis=1) > 0
-        adr0 = self._sensor[f"{self.model.actuator(0).name}_force"][0]
-        out["actuator_force"] = sd[:, adr0 : adr0 + self.model.nu]
-        out["gravity"] = gravity_from_quat(out["orientation"])
-        return out
+        return read_sensors(self.sim.sensordata, self._sensor, self.model.nu)
+
+    def constants(self) -> dict[str, np.ndarray]:
+        """The per-task constants of ``step_math`` (float64)."""
+        return {"default_pose": self.default_pose, "pose_weight": self.pose_weight, "soft_lower": self.soft_lower,
+                "soft_upper": self.soft_upper}
+
+    def info(self) -> dict[str, np.ndarray]:
+        """The per-env episode state ``step_math`` reads (Playground's ``info``)."""
+        return {"command": self.command, "last_act": self.last_act, "feet_air_time": self.feet_air_time,
+                "last_contact": self.last_contact, "swing_peak": self.swing_peak}
+
+    def _noise(self) -> np.ndarray:
+        M = self.num_envs
+        return self._rng.uniform(-1.0, 1.0, size=(M, self._noise_scale.size)) * self._noise_scale
 
     def _pose_offset(self, idx=slice(None)) -> np.ndarray:
         if not self.config.dr_pose_offset_on_targets:
@@ -672,15 +767,9 @@ class Go1JoystickFlat(base.Task):
         return self.default_pose + self._pose_offset() + action * self.config.action_scale
 
     def _observe(self, s: dict[str, np.ndarray], last_act, command, last_contact, air_time):
-        M = self.num_envs
-        noise = self._rng.uniform(-1.0, 1.0, size=(M, self._noise_scale.size)) * self._noise_scale
-        qj, vj = self.sim.qpos[:, 7:], self.sim.qvel[:, 6:]
-        obs = actor_obs(s["local_linvel"], s["gyro"], s["gravity"], qj, vj, last_act, command,
-                        self.default_pose, noise)
-        cobs = critic_obs(obs, s["gyro"], s["accelerometer"], s["gravity"], s["local_linvel"],
-                          s["global_angvel"], qj, vj, self.default_pose, s["actuator_force"], last_contact,
-                          s["feet_vel"], air_time)
-        return obs, cobs
+        noise = self._noise()
+        return observe(s, self.sim.qpos[:, 7:], self.sim.qvel[:, 6:], last_act, command, last_contact, air_time,
+                       self.default_pose, noise)
 
     def _exp_steps(self, n: int) -> np.ndarray:
         t = self._rng.exponential(1.0, size=n) * self.config.command_resample_mean_s
@@ -709,32 +798,22 @@ class Go1JoystickFlat(base.Task):
         return obs.astype(np.float32), cobs.astype(np.float32)
 
     def step(self, action: np.ndarray) -> base.StepOut:
-        c, M = self.config, self.num_envs
+        M = self.num_envs
         a = np.clip(np.asarray(action, dtype=np.float64).reshape(M, self.model.nu), -1.0, 1.0)
         a = np.nan_to_num(a, nan=0.0)
         unstable = self.sim.step(self._targets(a))
-        s = self._sensors()
-        qj, vj = self.sim.qpos[:, 7:], self.sim.qvel[:, 6:]
-        contact = s["contact"]
-        first_contact, air_time, swing_peak = feet_contact_update(
-            contact, self.last_contact, self.feet_air_time, self.swing_peak, s["feet_z"], self.dt
+        return self._after_physics(a, unstable)
+
+    def _after_physics(self, a: np.ndarray, unstable: np.ndarray) -> base.StepOut:
+        """The rest of ``step`` once ``self.sim`` holds the post-physics state and sensors (the parity
+        tests call it on a state set with ``sim.set_state``)."""
+        c, M = self.config, self.num_envs
+        noise = self._noise()
+        next_obs, next_cobs, done, scaled, reward, updated = step_math(
+            self._sensors(), self.sim.qpos[:, 7:], self.sim.qvel[:, 6:], a, self.info(), noise, self.constants(),
+            c, self.scales, self.dt,
         )
-        next_obs, next_cobs = self._observe(s, self.last_act, self.command, self.last_contact, air_time)
-        done = terminated(s["upvector"])
-        terms = reward_terms(
-            command=self.command, local_linvel=s["local_linvel"], gyro=s["gyro"],
-            global_linvel=s["global_linvel"], global_angvel=s["global_angvel"], upvector=s["upvector"],
-            joint_pos=qj, joint_vel=vj, default_pose=self.default_pose, pose_weight=self.pose_weight,
-            actuator_force=s["actuator_force"], action=a, last_act=self.last_act, done=done,
-            feet_vel=s["feet_vel"], feet_z=s["feet_z"], contact=contact, first_contact=first_contact,
-            air_time=air_time, swing_peak=swing_peak, soft_lower=self.soft_lower,
-            soft_upper=self.soft_upper, tracking_sigma=c.tracking_sigma, max_foot_height=c.max_foot_height,
-        )
-        scaled = scale_terms(terms, self.scales, self.dt)
-        reward = total_reward(scaled)
-        # Bookkeeping after the reward (Playground's order).
         self.last_last_act = self.last_act
-        self.last_act = a
         self.steps_until_next_cmd -= 1
         due = self.steps_until_next_cmd <= 0
         if due.any():
@@ -745,9 +824,10 @@ class Go1JoystickFlat(base.Task):
             )
             self.command = np.where(due[:, None], new, self.command)
             self.steps_until_next_cmd = np.where(due, self._exp_steps(M), self.steps_until_next_cmd)
-        self.feet_air_time = air_time * ~contact
-        self.last_contact = contact
-        self.swing_peak = swing_peak * ~contact
+        self.last_act = updated["last_act"]
+        self.feet_air_time = updated["feet_air_time"]
+        self.last_contact = updated["last_contact"]
+        self.swing_peak = updated["swing_peak"]
         self.steps += 1
         out, n_unstable = finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
                                       self.steps >= c.episode_length, self._reset_and_observe)

@@ -1,0 +1,435 @@
+"""Time to an evaluation return: heterogeneous runtime vs the MJX-resident baseline, lock-step vs async.
+
+Each configuration trains Go1 joystick flat in its own subprocess (one per invocation, so one run fits a
+10-minute command); this script watches the run's ``metrics.jsonl``, stops it at the first deterministic
+evaluation with ``eval/return >= --target`` (or at ``--max_seconds``), and appends a record to a JSON
+file (machine, versions, git commit, command, seed, time to target, best return, throughput, the whole
+evaluation curve)::
+
+    python bench/time_to_target.py --only mjx_ppo --seed 0 --max_seconds 540
+    python bench/time_to_target.py --only appo_async --seed 0 --max_seconds 540
+    python bench/time_to_target.py --report          # table + ratios, writes the markdown table
+
+Configurations (``CONFIGS``): ``ppo_lockstep`` / ``appo_async`` / ``fastsac_async`` run the heterogeneous
+runtime (CPU MuJoCo workers, ``--num_workers x --envs_per_worker``, learner on the accelerator);
+``mjx_ppo`` / ``mjx_fastsac`` the GPU-resident MJX loop (``unilab_jax/mjx_train.py``). Every run
+evaluates ``--eval_envs`` episodes with the deterministic policy, with the same task, reward and
+episode length.
+
+Clocks: time to target is the ``eval/wall_s`` of the first evaluation reaching the target: seconds
+from the training process's start (imports, XLA compilation, worker start-up included) to the moment
+the evaluated weights existed. The runtime evaluates in a background thread; the MJX loop evaluates
+in between training calls, so for it the record also holds ``train_time_to_target_s`` (the same clock
+minus the time spent evaluating), and the report compares with both.
+
+``--report`` groups records by configuration (mean over seeds), picks the heterogeneous configuration
+(``--het_best``, default: the fastest to target) and the MJX one (``--mjx``, default: the fastest),
+and prints the speed-ups in time to target and in env steps/s: heterogeneous vs MJX (goal >= 3x) and
+``appo_async`` vs ``ppo_lockstep`` (goal >= 1.5x). A run that did not reach the target counts at its
+budget, so a ratio against it is a bound (printed with >= or <=).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import hashlib
+import json
+import os
+import platform
+import shutil
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from typing import Any
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+DEFAULT_OUT = os.path.join(HERE, "results", "time_to_target.json")
+DEFAULT_MD = os.path.join(HERE, "results", "time_to_target.md")
+
+# name -> kind, script, extra flags; "{workers}" flags are filled from --num_workers/--envs_per_worker.
+CONFIGS: dict[str, dict[str, Any]] = {
+    "ppo_lockstep": {"kind": "heterogeneous", "sync": "lockstep", "script": "experiments/ppo_go1.py",
+                     "eval_every": 2_000_000},
+    "appo_async": {"kind": "heterogeneous", "sync": "async", "script": "experiments/appo_go1.py",
+                   "eval_every": 2_000_000},
+    "fastsac_async": {"kind": "heterogeneous", "sync": "async", "script": "experiments/fastsac_go1.py",
+                      "eval_every": 1_000_000},
+    "mjx_ppo": {"kind": "mjx", "sync": "lockstep", "script": "experiments/ppo_go1_mjx.py", "eval_every": 10_000_000,
+                "flags": ["--num_envs=8192"]},
+    "mjx_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
+                    "eval_every": 2_000_000, "flags": ["--num_envs=1024"]},
+}
+SOURCES = ("tasks/go1_joystick.py", "tasks/mjx_go1.py", "tasks/physics.py", "unilab_jax/trainer.py",
+           "unilab_jax/mjx_train.py", "unilab_jax/algos/ppo.py", "unilab_jax/algos/ppo_jax.py",
+           "unilab_jax/algos/fastsac.py", "unilab_jax/algos/offpolicy_jax.py", "unilab_jax/runtime/pool.py",
+           "unilab_jax/runtime/worker.py")
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", nargs="*", default=[], help=f"configurations to run, of {sorted(CONFIGS)}")
+    ap.add_argument("--seed", type=int, nargs="*", default=[0], help="seeds (each a separate run)")
+    ap.add_argument("--target", type=float, default=25.0, help="evaluation return to reach")
+    ap.add_argument("--max_seconds", type=float, default=540.0, help="budget per run, from its launch")
+    ap.add_argument("--num_workers", type=int, default=15)
+    ap.add_argument("--envs_per_worker", type=int, default=128)
+    ap.add_argument("--eval_envs", type=int, default=32)
+    ap.add_argument("--eval_every", type=int, default=0, help="env steps between evaluations (0: the config's)")
+    ap.add_argument("--extra", action="append", default=[], help="one more flag for the experiment script")
+    ap.add_argument("--no_stop_at_target", action="store_true", help="train until the budget even after the target")
+    ap.add_argument("--runs_dir", default="/tmp/time_to_target_runs", help="where the runs' logdirs go")
+    ap.add_argument("--metrics_dir", default=None, help="copy each run's metrics.jsonl here (<config>_s<seed>_<date>)")
+    ap.add_argument("--commit", default=None, help="git commit to record (default: detected; the GPU machine's copy "
+                    "has no .git)")
+    ap.add_argument("--out", default=DEFAULT_OUT, help="JSON file the records are appended to")
+    ap.add_argument("--report", action="store_true", help="print the table from --out instead of running")
+    ap.add_argument("--md", default=DEFAULT_MD, help="markdown table written by --report")
+    ap.add_argument("--het_best", default=None, help="heterogeneous configuration for the ratio (default: fastest)")
+    ap.add_argument("--mjx", default=None, help="MJX configuration for the ratio (default: fastest)")
+    args = ap.parse_args(argv)
+    unknown = sorted(set(args.only) - set(CONFIGS))
+    if unknown:
+        ap.error(f"unknown configurations {unknown}; choose from {sorted(CONFIGS)}")
+    if not args.report and not args.only:
+        ap.error("give --only CONFIG [...] to run, or --report")
+    return args
+
+
+# --------------------------------------------------------------------------------------------------
+# Machine and provenance
+# --------------------------------------------------------------------------------------------------
+def _cmd(args: list[str]) -> str | None:
+    try:
+        out = subprocess.run(args, capture_output=True, text=True, timeout=30, cwd=REPO)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def git_commit() -> str | None:
+    """HEAD's commit, from git or, where git is absent (the GPU machine's copy), from ``.git`` itself."""
+    commit = _cmd(["git", "rev-parse", "HEAD"])
+    if commit:
+        dirty = _cmd(["git", "status", "--porcelain", "--untracked-files=no"])
+        return commit + ("+dirty" if dirty else "")
+    try:
+        head = open(os.path.join(REPO, ".git", "HEAD")).read().strip()
+        if head.startswith("ref: "):
+            return open(os.path.join(REPO, ".git", head[5:])).read().strip()
+        return head
+    except OSError:
+        return None
+
+
+def source_digest() -> str:
+    """sha256 over the files that define the compared systems (provenance where git is unavailable)."""
+    h = hashlib.sha256()
+    for rel in SOURCES:
+        path = os.path.join(REPO, rel)
+        h.update(rel.encode())
+        if os.path.exists(path):
+            h.update(open(path, "rb").read())
+    return h.hexdigest()[:16]
+
+
+def machine_info() -> dict[str, Any]:
+    """Host, CPU, GPU (``nvidia-smi``) and versions; jax is imported but not initialised, so this process
+    takes no GPU memory from the runs."""
+    cpu = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
+    except OSError:
+        pass
+    versions: dict[str, str | None] = {"python": platform.python_version()}
+    for mod in ("numpy", "jax", "jaxlib", "mujoco", "optax"):
+        try:
+            versions[mod] = __import__(mod).__version__
+        except ImportError:
+            versions[mod] = None
+    gpus = _cmd(["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"])
+    return {"hostname": socket.gethostname(), "cpu_model": cpu, "cpu_count": os.cpu_count(),
+            "cpus_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+            "gpus": gpus.splitlines() if gpus else [], "platform": platform.platform(), "versions": versions,
+            "loadavg_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
+
+
+# --------------------------------------------------------------------------------------------------
+# Metrics
+# --------------------------------------------------------------------------------------------------
+class MetricsReader:
+    """Reads the rows appended to a ``metrics.jsonl`` since the last call (a partial last line waits)."""
+
+    def __init__(self, path: str):
+        self.path, self._offset, self._buf = path, 0, ""
+
+    def new_rows(self) -> list[dict[str, Any]]:
+        if not os.path.exists(self.path):
+            return []
+        with open(self.path) as f:
+            f.seek(self._offset)
+            chunk = f.read()
+            self._offset = f.tell()
+        self._buf += chunk
+        *lines, self._buf = self._buf.split("\n")
+        return [json.loads(line) for line in lines if line.strip()]
+
+
+def summarize(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
+    """Time to target, best return and throughput from a run's metrics rows."""
+    evals = sorted((r for r in rows if "eval/return" in r), key=lambda r: r["eval/wall_s"])
+    train = [r for r in rows if "perf/env_steps_per_s" in r and "time/wall_s" in r]
+    out: dict[str, Any] = {"reached": False, "time_to_target_s": None, "train_time_to_target_s": None,
+                           "env_steps_at_target": None, "return_at_target": None}
+    hit = next((r for r in evals if r["eval/return"] >= target), None)
+    if hit is not None:
+        out.update(reached=True, time_to_target_s=hit["eval/wall_s"],
+                   train_time_to_target_s=hit.get("eval/train_wall_s", hit["eval/wall_s"]),
+                   env_steps_at_target=hit["step"], return_at_target=hit["eval/return"])
+    if evals:
+        best = max(evals, key=lambda r: r["eval/return"])
+        out.update(best_return=best["eval/return"], best_return_wall_s=best["eval/wall_s"],
+                   best_return_step=best["step"])
+    else:
+        out.update(best_return=None, best_return_wall_s=None, best_return_step=None)
+    if len(train) >= 2:
+        first, last = train[0], train[-1]
+        out["env_steps_per_s_mean"] = (last["step"] - first["step"]) / max(last["time/wall_s"] - first["time/wall_s"],
+                                                                           1e-9)
+        out["env_steps_per_s_median"] = statistics.median(r["perf/env_steps_per_s"] for r in train[1:])
+    else:
+        out["env_steps_per_s_mean"] = out["env_steps_per_s_median"] = None
+    out["first_train_row_wall_s"] = train[0]["time/wall_s"] if train else None
+    out["final_env_steps"] = max((r["step"] for r in rows), default=0)
+    out["evals"] = [[r["step"], round(r["eval/wall_s"], 2), round(r.get("eval/train_wall_s", r["eval/wall_s"]), 2),
+                     round(r["eval/return"], 3)] for r in evals]
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Running one configuration
+# --------------------------------------------------------------------------------------------------
+def command(name: str, cfg: dict[str, Any], seed: int, logdir: str, args: argparse.Namespace) -> list[str]:
+    cmd = [sys.executable, os.path.join(REPO, cfg["script"]), f"--seed={seed}", f"--logdir={logdir}",
+           f"--eval_every={args.eval_every or cfg['eval_every']}", f"--eval_envs={args.eval_envs}",
+           "--total_steps=10000000000"]
+    if cfg["kind"] == "heterogeneous":
+        cmd += [f"--num_workers={args.num_workers}", f"--envs_per_worker={args.envs_per_worker}"]
+    else:
+        cmd += [f"--max_seconds={args.max_seconds}"]
+    return cmd + list(cfg.get("flags", [])) + list(args.extra)
+
+
+def _stop(proc: subprocess.Popen, grace: float = 30.0) -> None:
+    """SIGTERM to the run's process group (the trainers shut down in order), SIGKILL after ``grace`` s."""
+    for sig, wait in ((signal.SIGTERM, grace), (signal.SIGKILL, 10.0)):
+        if proc.poll() is not None:
+            return
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(timeout=wait)
+        except subprocess.TimeoutExpired:
+            continue
+
+
+def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] | None = None,
+            poll_s: float = 1.0) -> dict[str, Any]:
+    """Runs configuration ``name`` once and returns its record (not yet saved)."""
+    cfg = cfg or CONFIGS[name]
+    stamp = datetime.datetime.now().strftime("%Y%m%d_%H%M%S")
+    logdir = os.path.join(args.runs_dir, f"{name}_s{seed}_{stamp}")
+    os.makedirs(logdir, exist_ok=True)
+    cmd = command(name, cfg, seed, logdir, args)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (REPO, os.environ.get("PYTHONPATH")) if p),
+           "PYTHONUNBUFFERED": "1"}
+    reader = MetricsReader(os.path.join(logdir, "metrics.jsonl"))
+    rows: list[dict[str, Any]] = []
+    print(f"[{name} seed {seed}] {' '.join(cmd)}", flush=True)
+    # MJX runs stop themselves at the budget (between jitted calls); the margin only catches a hung one.
+    limit = args.max_seconds + (30.0 if cfg["kind"] == "mjx" else 0.0)
+    t_launch = time.time()
+    with open(os.path.join(logdir, "stdout.log"), "w") as log:
+        proc = subprocess.Popen(cmd, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        stopped_by = "exit"
+        try:
+            while proc.poll() is None:
+                time.sleep(poll_s)
+                new = reader.new_rows()
+                rows += new
+                for r in new:
+                    if "eval/return" in r:
+                        print(f"[{name} seed {seed}] eval {r['eval/return']:.2f} at {r['step']:,} steps, "
+                              f"{r['eval/wall_s']:.0f} s", flush=True)
+                if not args.no_stop_at_target and any(r.get("eval/return", -1e30) >= args.target for r in new):
+                    stopped_by = "target"
+                    break
+                if time.time() - t_launch > limit:
+                    stopped_by = "max_seconds"
+                    break
+        finally:
+            _stop(proc)
+    rows += reader.new_rows()
+    record = {"config": name, "kind": cfg["kind"], "sync": cfg["sync"], "seed": seed, "target": args.target,
+              "max_seconds": args.max_seconds, "command": cmd[1:], "stopped_by": stopped_by,
+              "returncode": proc.returncode, "bench_wall_s": time.time() - t_launch, "logdir": logdir,
+              "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+              **summarize(rows, args.target)}
+    if args.metrics_dir and os.path.exists(reader.path):
+        os.makedirs(args.metrics_dir, exist_ok=True)
+        record["metrics_copy"] = os.path.join(args.metrics_dir, f"{name}_s{seed}_{stamp}.jsonl")
+        shutil.copyfile(reader.path, record["metrics_copy"])
+    summary_path = os.path.join(logdir, "summary.json")
+    if os.path.exists(summary_path):
+        record["run_summary"] = json.load(open(summary_path))
+    if stopped_by == "exit" and proc.returncode not in (0, None):
+        record["stdout_tail"] = open(os.path.join(logdir, "stdout.log")).read()[-3000:]
+    return record
+
+
+def append(path: str, record: dict[str, Any]) -> None:
+    data = json.load(open(path)) if os.path.exists(path) else {"records": []}
+    data["records"].append(record)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(data, f, indent=1)
+    os.replace(tmp, path)
+
+
+# --------------------------------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------------------------------
+def aggregate(records: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per configuration: seeds, mean time to target (a run that missed counts at its budget, and the
+    mean is then a lower bound), mean env steps/s, best return."""
+    out: dict[str, dict[str, Any]] = {}
+    for name in sorted({r["config"] for r in records}):
+        rs = [r for r in records if r["config"] == name]
+        times = [r["time_to_target_s"] if r["reached"] else r["max_seconds"] for r in rs]
+        train_times = [r["train_time_to_target_s"] if r["reached"] else r["max_seconds"] for r in rs]
+        rates = [r["env_steps_per_s_median"] for r in rs if r.get("env_steps_per_s_median")]
+        steps = [r["env_steps_at_target"] for r in rs if r["reached"]]
+        out[name] = {"kind": rs[0]["kind"], "sync": rs[0]["sync"], "seeds": [r["seed"] for r in rs],
+                     "reached": sum(r["reached"] for r in rs), "runs": len(rs),
+                     "time_to_target_s": statistics.mean(times), "per_seed_s": times,
+                     "train_time_to_target_s": statistics.mean(train_times),
+                     "lower_bound": not all(r["reached"] for r in rs),
+                     "env_steps_at_target": statistics.mean(steps) if steps else None,
+                     "env_steps_per_s": statistics.mean(rates) if rates else None,
+                     "best_return": max((r["best_return"] for r in rs if r.get("best_return") is not None),
+                                        default=None)}
+    return out
+
+
+def _pick(agg: dict[str, dict[str, Any]], kind: str, name: str | None) -> str | None:
+    if name is not None:
+        if name not in agg:
+            raise SystemExit(f"no records for {name!r}; have {sorted(agg)}")
+        return name
+    names = [n for n, a in agg.items() if a["kind"] == kind]
+    return min(names, key=lambda n: (agg[n]["lower_bound"], agg[n]["time_to_target_s"]), default=None)
+
+
+def _ratio(slow: dict[str, Any], fast: dict[str, Any], key: str = "time_to_target_s") -> tuple[float, str]:
+    """(slow / fast, relation): a missed target makes the ratio a bound."""
+    r = slow[key] / fast[key]
+    if fast["lower_bound"] and slow["lower_bound"]:
+        return r, "?"
+    if slow["lower_bound"]:
+        return r, ">="
+    if fast["lower_bound"]:
+        return r, "<="
+    return r, "="
+
+
+RELATION = {"=": "", ">=": "at least ", "<=": "at most ", "?": "(neither reached the target; budget ratio) "}
+
+
+def report(records: list[dict[str, Any]], het_best: str | None = None, mjx: str | None = None,
+           target: float | None = None) -> tuple[str, dict[str, Any]]:
+    """(markdown, ratios) for the records."""
+    agg = aggregate(records)
+    target = target if target is not None else records[0]["target"]
+    lines = [f"| configuration | kind | seeds (reached {target:g}) | time to {target:g} (s), mean | per seed (s) | "
+             "same, evaluation time excluded (s) | env steps at target | env steps/s | best return |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name, a in agg.items():
+        ttt = f"{'>= ' if a['lower_bound'] else ''}{a['time_to_target_s']:.0f}"
+        per = ", ".join(f"{t:.0f}" for t in a["per_seed_s"])
+        steps = f"{a['env_steps_at_target'] / 1e6:.1f}M" if a["env_steps_at_target"] else "-"
+        rate = f"{a['env_steps_per_s']:,.0f}" if a["env_steps_per_s"] else "-"
+        best = f"{a['best_return']:.1f}" if a["best_return"] is not None else "-"
+        lines.append(f"| {name} | {a['kind']} | {a['runs']} ({a['reached']}) | {ttt} | {per} | "
+                     f"{'>= ' if a['lower_bound'] else ''}{a['train_time_to_target_s']:.0f} | {steps} | {rate} | "
+                     f"{best} |")
+    ratios: dict[str, Any] = {}
+    het, base = _pick(agg, "heterogeneous", het_best), _pick(agg, "mjx", mjx)
+    if het and base:
+        r, rel = _ratio(agg[base], agg[het])
+        r_train, rel_train = _ratio(agg[base], agg[het], "train_time_to_target_s")
+        ratios["heterogeneous_vs_mjx"] = {"heterogeneous": het, "mjx": base, "speedup": r, "relation": rel,
+                                          "speedup_mjx_eval_excluded": r_train, "relation_eval_excluded": rel_train,
+                                          "goal": 3.0, "met": rel in ("=", ">=") and r >= 3.0}
+        if agg[het]["env_steps_per_s"] and agg[base]["env_steps_per_s"]:
+            ratios["heterogeneous_vs_mjx"]["throughput_ratio"] = agg[het]["env_steps_per_s"] / agg[base][
+                "env_steps_per_s"]
+    if "ppo_lockstep" in agg and "appo_async" in agg:
+        r, rel = _ratio(agg["ppo_lockstep"], agg["appo_async"])
+        ratios["async_vs_lockstep"] = {"speedup": r, "relation": rel, "goal": 1.5,
+                                       "met": rel in ("=", ">=") and r >= 1.5}
+        if agg["ppo_lockstep"]["env_steps_per_s"] and agg["appo_async"]["env_steps_per_s"]:
+            ratios["async_vs_lockstep"]["throughput_ratio"] = (agg["appo_async"]["env_steps_per_s"]
+                                                               / agg["ppo_lockstep"]["env_steps_per_s"])
+    lines.append("")
+    if "heterogeneous_vs_mjx" in ratios:
+        h = ratios["heterogeneous_vs_mjx"]
+        tp = f"; env steps/s ratio {h['throughput_ratio']:.2f}x" if "throughput_ratio" in h else ""
+        lines.append(f"Heterogeneous ({h['heterogeneous']}) vs MJX ({h['mjx']}): time to {target:g} "
+                     f"{RELATION[h['relation']]}{h['speedup']:.2f}x faster "
+                     f"(MJX evaluation time excluded: {h['speedup_mjx_eval_excluded']:.2f}x){tp}; goal >= 3x: "
+                     f"{'met' if h['met'] else 'not met'}.")
+    if "async_vs_lockstep" in ratios:
+        a = ratios["async_vs_lockstep"]
+        tp = f"; env steps/s ratio {a['throughput_ratio']:.2f}x" if "throughput_ratio" in a else ""
+        lines.append(f"Asynchronous (appo_async) vs lock-step (ppo_lockstep): time to {target:g} "
+                     f"{RELATION[a['relation']]}{a['speedup']:.2f}x faster{tp}; goal >= 1.5x: "
+                     f"{'met' if a['met'] else 'not met'}.")
+    machines = sorted({f"{r['machine']['gpus'][0] if r['machine'].get('gpus') else 'no GPU'}, "
+                       f"{r['machine']['cpus_usable']} CPU cores" for r in records if "machine" in r})
+    if machines:
+        lines.append(f"Machine: {'; '.join(machines)}.")
+    return "\n".join(lines) + "\n", ratios
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    if args.report:
+        records = json.load(open(args.out))["records"]
+        md, ratios = report(records, args.het_best, args.mjx, args.target)
+        print(md)
+        with open(args.md, "w") as f:
+            f.write(md)
+        print(f"wrote {args.md}")
+        return
+    machine, commit, digest = machine_info(), args.commit or git_commit(), source_digest()
+    for name in args.only:
+        for seed in args.seed:
+            record = run_one(name, seed, args)
+            record.update(machine=machine, git_commit=commit, source_digest=digest)
+            append(args.out, record)
+            status = (f"reached {args.target:g} at {record['time_to_target_s']:.0f} s "
+                      f"({record['env_steps_at_target']:,} env steps)" if record["reached"]
+                      else f"not reached in {args.max_seconds:.0f} s (best {record['best_return']})")
+            print(f"[{name} seed {seed}] {status}; wrote {args.out}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

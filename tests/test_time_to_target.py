@@ -1,0 +1,135 @@
+"""bench/time_to_target.py: parsing a run's metrics, the report's ratios and bounds, and running a configuration
+(a stand-in experiment script) until it reaches the target."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import textwrap
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+_spec = importlib.util.spec_from_file_location("time_to_target", os.path.join(ROOT, "bench", "time_to_target.py"))
+ttt = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ttt)
+
+
+def _rows(evals, rate=1000.0, train_wall=None):
+    """Training rows every 10 s at ``rate`` env steps/s, plus eval rows (wall_s, return)."""
+    rows = [{"step": int(rate * t), "perf/env_steps_per_s": rate, "time/wall_s": float(t), "loss/x": 0.0}
+            for t in range(10, 110, 10)]
+    for i, (wall, ret) in enumerate(evals):
+        row = {"step": int(rate * wall), "eval/return": ret, "eval/wall_s": wall, "eval/done_wall_s": wall + 3}
+        if train_wall is not None:
+            row["eval/train_wall_s"] = train_wall[i]
+        rows.append(row)
+    return rows
+
+
+def test_summarize_finds_first_eval_at_target():
+    s = ttt.summarize(_rows([(20.0, 5.0), (40.0, 26.0), (60.0, 24.0), (80.0, 29.0)]), target=25.0)
+    assert s["reached"] and s["time_to_target_s"] == 40.0 and s["env_steps_at_target"] == 40_000
+    assert s["train_time_to_target_s"] == 40.0 and s["return_at_target"] == 26.0
+    assert s["best_return"] == 29.0 and s["best_return_wall_s"] == 80.0
+    assert s["env_steps_per_s_mean"] == pytest.approx(1000.0) and s["env_steps_per_s_median"] == 1000.0
+    assert [e[3] for e in s["evals"]] == [5.0, 26.0, 24.0, 29.0]
+    # The MJX loop's evaluation-excluded clock is carried through.
+    m = ttt.summarize(_rows([(30.0, 25.5)], train_wall=[21.0]), target=25.0)
+    assert m["time_to_target_s"] == 30.0 and m["train_time_to_target_s"] == 21.0
+    miss = ttt.summarize(_rows([(30.0, 10.0)]), target=25.0)
+    assert not miss["reached"] and miss["time_to_target_s"] is None and miss["best_return"] == 10.0
+
+
+def test_metrics_reader_waits_for_complete_lines(tmp_path):
+    path = tmp_path / "metrics.jsonl"
+    reader = ttt.MetricsReader(str(path))
+    assert reader.new_rows() == []
+    with open(path, "w") as f:
+        f.write('{"step": 1}\n{"step": ')
+    assert reader.new_rows() == [{"step": 1}]
+    with open(path, "a") as f:
+        f.write('2}\n')
+    assert reader.new_rows() == [{"step": 2}]
+
+
+def _record(config, kind, sync, seed, time_s, reached=True, rate=1e5, train=None, budget=540.0):
+    return {"config": config, "kind": kind, "sync": sync, "seed": seed, "target": 25.0, "max_seconds": budget,
+            "reached": reached, "time_to_target_s": time_s if reached else None,
+            "train_time_to_target_s": (train or time_s) if reached else None,
+            "env_steps_at_target": 3e7 if reached else None, "env_steps_per_s_median": rate, "best_return": 26.0,
+            "machine": {"gpus": ["NVIDIA H100 80GB HBM3, 81559 MiB, 550"], "cpus_usable": 16}}
+
+
+def test_report_ratios_bounds_and_goals():
+    records = [
+        _record("ppo_lockstep", "heterogeneous", "lockstep", 0, 300.0, rate=6.5e4),
+        _record("ppo_lockstep", "heterogeneous", "lockstep", 1, 340.0, rate=6.5e4),
+        _record("appo_async", "heterogeneous", "async", 0, 180.0, rate=8e4),
+        _record("appo_async", "heterogeneous", "async", 1, 200.0, rate=8e4),
+        _record("mjx_ppo", "mjx", "lockstep", 0, 520.0, rate=5e5, train=400.0),
+        _record("mjx_ppo", "mjx", "lockstep", 1, None, reached=False, rate=5e5),
+    ]
+    md, ratios = ttt.report(records)
+    h = ratios["heterogeneous_vs_mjx"]
+    assert h["heterogeneous"] == "appo_async" and h["mjx"] == "mjx_ppo"  # the fastest of each kind
+    # mjx_ppo missed the target on seed 1: it counts at its 540 s budget, so its mean is a lower bound.
+    assert h["speedup"] == pytest.approx(((520 + 540) / 2) / 190) and h["relation"] == ">="
+    assert h["speedup_mjx_eval_excluded"] == pytest.approx(((400 + 540) / 2) / 190)
+    assert not h["met"] and h["throughput_ratio"] == pytest.approx(8e4 / 5e5)
+    a = ratios["async_vs_lockstep"]
+    assert a["speedup"] == pytest.approx(320 / 190) and a["relation"] == "=" and a["met"]
+    assert "| mjx_ppo | mjx | 2 (1) | >= 530 | 520, 540 |" in md
+    assert "goal >= 1.5x: met" in md and "goal >= 3x: not met" in md and "at least 2.79x" in md
+    assert "NVIDIA H100" in md
+    # Choosing the configuration by name.
+    _, named = ttt.report(records, het_best="ppo_lockstep")
+    assert named["heterogeneous_vs_mjx"]["speedup"] == pytest.approx(530 / 320)
+
+
+FAKE_EXPERIMENT = textwrap.dedent('''
+    """Stands in for an experiment script: logs training rows and evaluations, then would run for minutes."""
+    import argparse, json, os, time
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--logdir")
+    ap.add_argument("--seed", type=int)
+    args, _ = ap.parse_known_args()
+    os.makedirs(args.logdir, exist_ok=True)
+    with open(os.path.join(args.logdir, "metrics.jsonl"), "a") as f:
+        for i, ret in enumerate([3.0, 12.0, 27.0, 30.0]):
+            step, wall = 1000 * (i + 1), i + 1.0
+            f.write(json.dumps({"step": step, "perf/env_steps_per_s": 500.0, "time/wall_s": wall}) + "\\n")
+            f.write(json.dumps({"step": step, "eval/return": ret + args.seed, "eval/wall_s": wall}) + "\\n")
+            f.flush()
+            time.sleep(0.3)
+    time.sleep(300)
+''')
+
+
+def test_run_one_stops_at_target_and_appends(tmp_path):
+    script = tmp_path / "fake_experiment.py"
+    script.write_text(FAKE_EXPERIMENT)
+    out = str(tmp_path / "results.json")
+    args = ttt.parse_args(["--only", "mjx_ppo", "--max_seconds", "60", "--runs_dir", str(tmp_path / "runs"),
+                           "--out", out])
+    cfg = {"kind": "mjx", "sync": "lockstep", "script": str(script), "eval_every": 1000}
+    record = ttt.run_one("fake", 0, args, cfg=cfg, poll_s=0.1)
+    assert record["stopped_by"] == "target" and record["reached"]
+    assert record["time_to_target_s"] == 3.0 and record["env_steps_at_target"] == 3000
+    assert record["bench_wall_s"] < 30 and record["returncode"] is not None  # stopped, not waited out
+    assert "--max_seconds=60.0" in record["command"] and "--seed=0" in record["command"]
+    record.update(machine=ttt.machine_info(), git_commit=ttt.git_commit(), source_digest=ttt.source_digest())
+    ttt.append(out, record)
+    ttt.append(out, {**record, "seed": 1})
+    data = json.load(open(out))
+    assert [r["seed"] for r in data["records"]] == [0, 1]
+    assert data["records"][0]["machine"]["cpus_usable"] >= 1 and len(data["records"][0]["source_digest"]) == 16
+
+
+def test_cli_requires_a_configuration(capsys):
+    with pytest.raises(SystemExit):
+        ttt.parse_args([])
+    with pytest.raises(SystemExit):
+        ttt.parse_args(["--only", "no_such_config"])
+    assert "unknown configurations" in capsys.readouterr().err

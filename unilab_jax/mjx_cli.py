@@ -1,0 +1,105 @@
+"""Flags of the MJX experiments (``experiments/*_mjx.py``), validated before anything compiles.
+
+The shared experiment flags of ``unilab_jax.cli`` (``--total_steps``, ``--seed``, ``--logdir``,
+``--eval_every``, ``--eval_envs``, ``--config``, ``--task_config``, ``--task``) plus ``--num_envs``,
+``--max_seconds`` and ``--iterations_per_call``; the worker flags of the heterogeneous runtime are rejected::
+
+    from unilab_jax.mjx_cli import run_mjx_experiment
+    run_mjx_experiment(algo="ppo", task="go1_joystick_flat", recipe={...}, default_num_envs=8192)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from collections.abc import Mapping
+from typing import Any
+
+from absl import app, flags
+from absl import logging as absl_logging
+
+from unilab_jax import cli
+
+FLAGS = flags.FLAGS
+flags.DEFINE_integer("num_envs", None, "MJX environments stepped together on the accelerator (default: the "
+                     "experiment's)")
+flags.DEFINE_float("max_seconds", 0.0, "stop after this much wall time from process start (0: no limit)")
+flags.DEFINE_integer("iterations_per_call", None, "training iterations per jitted call, one logged row per call "
+                     "(default: the experiment's)")
+
+RUNTIME_ONLY = ("num_workers", "envs_per_worker", "serial", "resume", "checkpoint_every", "replay_dir")
+
+
+def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
+              default_total_steps: int, default_num_envs: int,
+              default_iterations_per_call: int) -> tuple[Any, Any, Any, dict[str, Any]]:
+    """Validates the flags; returns (MjxRunConfig, algorithm module, algorithm config, task overrides)."""
+    import tasks
+    from unilab_jax import algos
+    from unilab_jax.config import apply_overrides, parse_overrides
+    from unilab_jax.mjx_train import MJX_TASKS, MjxRunConfig
+
+    given = [name for name in RUNTIME_ONLY if name in FLAGS and FLAGS[name].present]
+    if given:
+        raise cli.FlagError(f"--{given[0]} is a flag of the CPU-worker runtime; MJX runs take --num_envs")
+    if FLAGS.platform != "jax":
+        raise cli.FlagError(f"--platform={FLAGS.platform!r}: MJX runs need jax")
+    task_name = FLAGS.task or task
+    if task_name not in MJX_TASKS:
+        raise cli.FlagError(f"--task={task_name!r}: tasks with an MJX variant are {sorted(MJX_TASKS)}")
+    num_envs = FLAGS.num_envs if FLAGS.num_envs is not None else default_num_envs
+    iters = FLAGS.iterations_per_call if FLAGS.iterations_per_call is not None else default_iterations_per_call
+    total = FLAGS.total_steps if FLAGS.total_steps is not None else default_total_steps
+    for name, value in (("num_envs", num_envs), ("eval_envs", FLAGS.eval_envs), ("iterations_per_call", iters),
+                        ("total_steps", total)):
+        if value < 1:
+            raise cli.FlagError(f"--{name} must be at least 1, got {value}")
+    if FLAGS.eval_every < 0 or FLAGS.max_seconds < 0:
+        raise cli.FlagError("--eval_every and --max_seconds must be >= 0")
+    module = algos.get(algo)
+    config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(FLAGS.config))
+    task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
+    task_config = apply_overrides(tasks.default_config(task_name), task_overrides)  # rejects unknown keys
+    task_overrides = {k: getattr(task_config, k) for k in task_overrides}
+    if module.BUFFER == "trajectory" and config.horizon * num_envs < config.num_minibatches:
+        raise cli.FlagError(f"a batch of {config.horizon * num_envs} transitions cannot make "
+                            f"{config.num_minibatches} minibatches")
+    logdir = FLAGS.logdir or os.path.join("runs", f"{algo}_mjx_{task_name}_s{FLAGS.seed}")
+    try:
+        os.makedirs(logdir, exist_ok=True)
+    except OSError as e:
+        raise cli.FlagError(f"--logdir={logdir!r} cannot be created: {e}") from e
+    run = MjxRunConfig(algo=algo, task=task_name, num_envs=num_envs, total_steps=total, seed=FLAGS.seed,
+                       logdir=logdir, eval_every=FLAGS.eval_every, eval_envs=FLAGS.eval_envs,
+                       max_seconds=FLAGS.max_seconds, iterations_per_call=iters)
+    return run, module, config, task_overrides
+
+
+def run_mjx_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None,
+                       task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 100_000_000,
+                       default_num_envs: int = 8192, default_iterations_per_call: int = 1) -> None:
+    """Parses the flags, validates them, trains on MJX, prints the summary."""
+
+    def main(argv: list[str]) -> None:
+        if not any(a.startswith(("-v", "--v")) for a in sys.argv[1:]):
+            absl_logging.set_verbosity(absl_logging.WARNING)
+        if len(argv) > 1:
+            raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+        from unilab_jax.config import ConfigError
+
+        try:
+            run, module, config, task_overrides = build_run(algo, task, recipe or {}, task_recipe or {},
+                                                            default_total_steps, default_num_envs,
+                                                            default_iterations_per_call)
+            from unilab_jax.mjx_train import make_trainer
+
+            trainer = make_trainer(run, module, config, task_overrides, start_time=cli.PROCESS_START)
+        except (cli.FlagError, ConfigError, ValueError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
+        summary = trainer.train()
+        print(json.dumps(summary, indent=2))
+        print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
+
+    app.run(main)
