@@ -88,6 +88,16 @@ def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config)
     return {"first_call_s": first, "steady_s": float(np.median(times)), "repeats": repeats}
 
 
+def _recipe(path: str) -> dict:
+    """The ``RECIPE`` dict of an experiment script, read without running it."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_bench_recipe", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return dict(module.RECIPE)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algos", nargs="+", default=["ppo"])
@@ -95,32 +105,38 @@ def main() -> None:
     ap.add_argument("--ppo_envs", type=int, default=1024, help="B of the PPO batch [24, B]")
     ap.add_argument("--offpolicy_batch", type=int, default=4096)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--recipe", help="experiment script (e.g. experiments/fastsac_go1.py) whose RECIPE overrides the "
+                    "defaults of the algorithms named by --algos (its batch_size wins over --offpolicy_batch)")
     ap.add_argument("--out", default=os.path.join(REPO, "bench", "results", "learner_update_local.json"))
     args = ap.parse_args()
+    recipe = _recipe(args.recipe) if args.recipe else {}
     rng = np.random.default_rng(0)
     rows = []
     for algo in args.algos:
         module = algos.get(algo)
         if module.BUFFER == "trajectory":
-            config = module.Config()
+            config = apply_overrides(module.Config(), recipe)
             batch = _trajectory_batch(rng, config.horizon, args.ppo_envs)
             shape = f"[{config.horizon}, {args.ppo_envs}], {config.num_epochs}x{config.num_minibatches} minibatches"
         else:
-            config = apply_overrides(module.Config(), {"batch_size": args.offpolicy_batch})
-            batch = _replay_batch(rng, config.updates_per_call, args.offpolicy_batch)
-            shape = f"[{config.updates_per_call}, {args.offpolicy_batch}] ({config.updates_per_call} gradient steps)"
+            config = apply_overrides(module.Config(), {"batch_size": args.offpolicy_batch, **recipe})
+            batch = _replay_batch(rng, config.updates_per_call, config.batch_size)
+            shape = f"[{config.updates_per_call}, {config.batch_size}] ({config.updates_per_call} gradient steps)"
         for plat in args.platforms:
             result = measure(algo, plat, batch, args.repeats, config)
             rows.append({"algo": algo, "platform": plat, "batch": shape, **result})
             print(f"{algo:9s} {plat:4s} {shape:48s} first {result['first_call_s']:7.2f} s  "
                   f"steady {result['steady_s'] * 1e3:9.1f} ms", flush=True)
     import jax
-    import mlx.core as mx
 
     machine = {"hostname": platform.node(), "date": datetime.datetime.now(datetime.timezone.utc).isoformat(),
                "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
                "python": platform.python_version(), "jax": jax.__version__, "jax_devices": str(jax.devices()),
-               "mlx": mx.__version__, "mlx_device": str(mx.default_device())}
+               "recipe": args.recipe}
+    if "mlx" in args.platforms:
+        import mlx.core as mx
+
+        machine.update({"mlx": mx.__version__, "mlx_device": str(mx.default_device())})
     with open(args.out, "w") as f:
         json.dump({"machine": machine, "rows": rows}, f, indent=2)
     print(f"wrote {args.out}")
