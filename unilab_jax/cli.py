@@ -15,7 +15,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from absl import app, flags
@@ -128,28 +128,39 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     return run, module, config, task_overrides
 
 
-def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None,
-                   task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000) -> None:
-    """Parses the shared flags, validates them, trains, prints the summary."""
+def launch(validate: Callable[[], Any], train: Callable[[Any], None],
+           errors: tuple[type[Exception], ...] = ()) -> None:
+    """The absl ``main`` of every experiment launcher: quiet logging unless ``-v`` is given (orbax logs every
+    save at INFO), no stray arguments, ``validate()`` -- a flag or config error (or one of ``errors``) exits
+    with code 2 and a message before anything starts -- then ``train(validate())``."""
 
     def main(argv: list[str]) -> None:
         if not any(a.startswith(("-v", "--v")) for a in sys.argv[1:]):
-            absl_logging.set_verbosity(absl_logging.WARNING)  # orbax logs every save at INFO; -v 0 shows it
+            absl_logging.set_verbosity(absl_logging.WARNING)
         if len(argv) > 1:
             raise app.UsageError(f"unexpected arguments: {argv[1:]}")
         from unilab_jax.config import ConfigError
 
         try:
-            run, module, config, task_overrides = build_run(algo, task, recipe or {}, task_recipe or {},
-                                                            default_total_steps)
-        except (FlagError, ConfigError) as e:
+            validated = validate()
+        except (FlagError, ConfigError, *errors) as e:
             print(f"error: {e}", file=sys.stderr)
             sys.exit(2)
+        train(validated)
+
+    app.run(main)
+
+
+def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None,
+                   task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000) -> None:
+    """Parses the shared flags, validates them, trains, prints the summary."""
+
+    def train(parts: tuple) -> None:
         from unilab_jax.trainer import Trainer
 
-        summary = Trainer(run, module, config, task_overrides, start_time=PROCESS_START).train()
+        summary = Trainer(*parts, start_time=PROCESS_START).train()
         print(json.dumps(summary, indent=2))
         print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
         print(f"checkpoints: {summary['checkpoints']}")
 
-    app.run(main)
+    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps), train)

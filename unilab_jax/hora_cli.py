@@ -23,13 +23,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import sys
 import types
 from collections.abc import Mapping
 from typing import Any
 
-from absl import app, flags
-from absl import logging as absl_logging
+from absl import flags
 
 from unilab_jax import cli
 
@@ -176,19 +174,7 @@ def run_hora(task: str, teacher_recipe: Mapping[str, Any], student_recipe: Mappi
              task_recipe: Mapping[str, Any], default_teacher_steps: int, default_student_steps: int) -> None:
     """Parses the flags, validates both stages, trains what is left to train, compares the two policies."""
 
-    def main(argv: list[str]) -> None:
-        if not any(a.startswith(("-v", "--v")) for a in sys.argv[1:]):
-            absl_logging.set_verbosity(absl_logging.WARNING)
-        if len(argv) > 1:
-            raise app.UsageError(f"unexpected arguments: {argv[1:]}")
-        from unilab_jax.config import ConfigError
-
-        try:
-            plan = _plan(task, teacher_recipe, student_recipe, task_recipe, default_teacher_steps,
-                         default_student_steps)
-        except (cli.FlagError, ConfigError) as e:
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(2)
+    def train(plan: dict[str, Any]) -> None:
         from unilab_jax.trainer import Trainer
 
         if plan["teacher_done"]:
@@ -207,4 +193,5 @@ def run_hora(task: str, teacher_recipe: Mapping[str, Any], student_recipe: Mappi
         print("hora:", json.dumps(_compare(plan), indent=2))
         print(f"logs: {os.path.abspath(plan['root'])}")
 
-    app.run(main)
+    cli.launch(lambda: _plan(task, teacher_recipe, student_recipe, task_recipe, default_teacher_steps,
+                             default_student_steps), train)

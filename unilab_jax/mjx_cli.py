@@ -12,12 +12,10 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 from collections.abc import Mapping
 from typing import Any
 
-from absl import app, flags
-from absl import logging as absl_logging
+from absl import flags
 
 from unilab_jax import cli
 
@@ -81,25 +79,17 @@ def run_mjx_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = 
                        default_num_envs: int = 8192, default_iterations_per_call: int = 1) -> None:
     """Parses the flags, validates them, trains on MJX, prints the summary."""
 
-    def main(argv: list[str]) -> None:
-        if not any(a.startswith(("-v", "--v")) for a in sys.argv[1:]):
-            absl_logging.set_verbosity(absl_logging.WARNING)
-        if len(argv) > 1:
-            raise app.UsageError(f"unexpected arguments: {argv[1:]}")
-        from unilab_jax.config import ConfigError
+    def validate() -> Any:
+        run, module, config, task_overrides = build_run(algo, task, recipe or {}, task_recipe or {},
+                                                        default_total_steps, default_num_envs,
+                                                        default_iterations_per_call)
+        from unilab_jax.mjx_train import make_trainer
 
-        try:
-            run, module, config, task_overrides = build_run(algo, task, recipe or {}, task_recipe or {},
-                                                            default_total_steps, default_num_envs,
-                                                            default_iterations_per_call)
-            from unilab_jax.mjx_train import make_trainer
+        return make_trainer(run, module, config, task_overrides, start_time=cli.PROCESS_START)
 
-            trainer = make_trainer(run, module, config, task_overrides, start_time=cli.PROCESS_START)
-        except (cli.FlagError, ConfigError, ValueError) as e:
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(2)
+    def train(trainer: Any) -> None:
         summary = trainer.train()
         print(json.dumps(summary, indent=2))
         print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
 
-    app.run(main)
+    cli.launch(validate, train, errors=(ValueError,))

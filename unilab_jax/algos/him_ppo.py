@@ -30,7 +30,7 @@ from unilab_jax import nets
 from unilab_jax import xp as shim
 from unilab_jax.algos import ppo
 from unilab_jax.algos.ppo import PPOConfig, extras
-from unilab_jax.core import distributions, him, normalizer
+from unilab_jax.core import him, normalizer
 
 SYNC = "lockstep"
 BUFFER = "trajectory"
@@ -121,11 +121,7 @@ def policy_weights(params: dict, obs_norm: Any) -> dict[str, Any]:
 
 def act(weights: dict[str, Any], obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
     """Gaussian policy on [frame, v_hat, latent]. obs [M, H d], noise [M, A] -> action [M, A], PPO's extras."""
-    xp = shim.namespace(obs)
-    mean, log_std = actor(weights, weights["obs_norm"], obs)
-    action = mean if deterministic else mean + xp.exp(log_std) * noise
-    log_prob = distributions.gaussian_log_prob(action, mean, log_std)
-    return action, {"log_prob": log_prob, "mean": mean, "log_std": log_std}
+    return ppo.gaussian_act(actor, weights, obs, noise, deterministic)
 
 
 def check_run(platform: str, task_config: Any, config: HIMPPOConfig) -> None:

@@ -12,10 +12,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from unilab_jax import xp as shim
 from unilab_jax.algos import hora
-from unilab_jax.algos.ppo import PPOConfig, extras
-from unilab_jax.core import distributions
+from unilab_jax.algos.ppo import PPOConfig, extras, gaussian_act
 
 SYNC = "lockstep"
 BUFFER = "trajectory"
@@ -37,11 +35,7 @@ Config = HoraTeacherConfig
 
 def act(weights: dict[str, Any], obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
     """Gaussian policy on [frame, z]. obs [M, H d + p], noise [M, A] -> action [M, A], PPO's extras."""
-    xp = shim.namespace(obs)
-    mean, log_std = hora.teacher_actor(weights, weights["obs_norm"], obs)
-    action = mean if deterministic else mean + xp.exp(log_std) * noise
-    log_prob = distributions.gaussian_log_prob(action, mean, log_std)
-    return action, {"log_prob": log_prob, "mean": mean, "log_std": log_std}
+    return gaussian_act(hora.teacher_actor, weights, obs, noise, deterministic)
 
 
 def check_run(platform: str, task_config: Any, config: Any) -> None:

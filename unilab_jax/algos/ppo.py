@@ -78,8 +78,15 @@ def policy_weights(params: dict[str, Any], obs_norm: Any) -> dict[str, Any]:
 
 def act(weights: dict[str, Any], obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
     """Gaussian policy. obs [M, obs_dim], noise [M, A] -> action [M, A], extras."""
+    return gaussian_act(_actor, weights, obs, noise, deterministic)
+
+
+def gaussian_act(actor: Actor, weights: dict[str, Any], obs: Any, noise: Any,
+                 deterministic: bool = False) -> tuple[Any, dict]:
+    """Worker-side step of any PPO variant: ``actor``'s Gaussian (its mean when deterministic) and the
+    behaviour-policy fields PPO stores with each transition (``extras``)."""
     xp = shim.namespace(obs)
-    mean, log_std = _actor(weights, weights["obs_norm"], obs)
+    mean, log_std = actor(weights, weights["obs_norm"], obs)
     action = mean if deterministic else mean + xp.exp(log_std) * noise
     log_prob = distributions.gaussian_log_prob(action, mean, log_std)
     return action, {"log_prob": log_prob, "mean": mean, "log_std": log_std}
