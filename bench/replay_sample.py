@@ -30,7 +30,6 @@ import sys
 import time
 import types
 from collections.abc import Callable
-from types import SimpleNamespace
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
@@ -39,10 +38,10 @@ for p in (REPO, HERE):
         sys.path.insert(0, p)
 
 import numpy as np  # noqa: E402
+from replay_store import GO1, random_rows  # noqa: E402
 
 from unilab_jax.runtime import buffers  # noqa: E402
 
-GO1 = SimpleNamespace(obs_dim=48, critic_obs_dim=123, action_dim=12, reward_terms=tuple(f"t{i}" for i in range(16)))
 BLOCK = 4096  # distinct random rows written over and over while filling
 
 
@@ -76,14 +75,7 @@ def load_baseline(ref: str) -> tuple[types.ModuleType, str]:
 
 def fill(buf, rng: np.random.Generator) -> float:
     """Writes every ring full through rows() + commit(); returns the seconds it took."""
-    block = {}
-    for name, (shape, dt) in buf.fields.items():
-        if dt == np.bool_:
-            block[name] = rng.random((BLOCK, *shape)) < 0.02
-        elif np.issubdtype(dt, np.integer):
-            block[name] = rng.integers(0, 1000, (BLOCK, *shape)).astype(dt)
-        else:
-            block[name] = rng.standard_normal((BLOCK, *shape), dtype=np.float32)
+    block = random_rows(buf.fields, BLOCK, rng, bool_rate=0.02)
     m, t0 = buf.envs_per_worker, time.perf_counter()
     for w in range(buf.num_workers):
         while buf.count(w) < buf.capacity:

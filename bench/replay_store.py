@@ -66,11 +66,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def _block(fields: dict, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+def random_rows(fields: dict, n: int, rng: np.random.Generator, bool_rate: float = 0.01) -> dict[str, np.ndarray]:
+    """``n`` random transitions of the layout ``fields`` (flags true with probability ``bool_rate``)."""
     out = {}
     for name, (shape, dt) in fields.items():
         if dt == np.bool_:
-            out[name] = rng.random((n, *shape)) < 0.01
+            out[name] = rng.random((n, *shape)) < bool_rate
         elif np.issubdtype(dt, np.integer):
             out[name] = rng.integers(0, 1000, (n, *shape)).astype(dt)
         else:
@@ -86,7 +87,7 @@ def fill(rows: int, directory: str) -> tuple[ReplayBuffer, ReplayStore, float]:
     rng = np.random.default_rng(0)
     written, write_s = 0, 0.0
     while written < rows:
-        block = _block(layout, BLOCK, rng)
+        block = random_rows(layout, BLOCK, rng)
         w = (written // BLOCK) % WORKERS
         _, views = ring.rows(w)
         for name, view in views.items():
