@@ -10,8 +10,8 @@ evaluation curve)::
     python bench/time_to_target.py --only appo_async --seed 0 --max_seconds 540
     python bench/time_to_target.py --report          # table + ratios, writes the markdown table
 
-Configurations (``CONFIGS``): ``ppo_lockstep`` / ``appo_async`` / ``fastsac_async`` run the heterogeneous
-runtime (CPU MuJoCo workers, ``--num_workers x --envs_per_worker``, learner on the accelerator);
+Configurations (``CONFIGS``): ``ppo_lockstep`` / ``appo_async`` / ``fastsac_async`` / ``flashsac_async`` run
+the heterogeneous runtime (CPU MuJoCo workers, ``--num_workers x --envs_per_worker``, learner on the accelerator);
 ``mjx_ppo`` / ``mjx_fastsac`` the GPU-resident MJX loop (``unilab_jax/mjx_train.py``). Every run
 evaluates ``--eval_envs`` episodes with the deterministic policy, with the same task, reward and
 episode length.
@@ -51,14 +51,18 @@ REPO = os.path.dirname(HERE)
 DEFAULT_OUT = os.path.join(HERE, "results", "time_to_target.json")
 DEFAULT_MD = os.path.join(HERE, "results", "time_to_target.md")
 
-# name -> kind, script, extra flags; "{workers}" flags are filled from --num_workers/--envs_per_worker.
+# name -> kind, script, extra flags. Heterogeneous runs get --num_workers and --envs_per_worker (the config's
+# "envs_per_worker", 128 if it names none, unless given on the command line): the off-policy recipes use 64
+# envs per worker, as in FastTD3/FastSAC's ~1024 parallel envs.
 CONFIGS: dict[str, dict[str, Any]] = {
     "ppo_lockstep": {"kind": "heterogeneous", "sync": "lockstep", "script": "experiments/ppo_go1.py",
                      "eval_every": 2_000_000},
     "appo_async": {"kind": "heterogeneous", "sync": "async", "script": "experiments/appo_go1.py",
                    "eval_every": 2_000_000},
     "fastsac_async": {"kind": "heterogeneous", "sync": "async", "script": "experiments/fastsac_go1.py",
-                      "eval_every": 1_000_000},
+                      "eval_every": 1_000_000, "envs_per_worker": 64},
+    "flashsac_async": {"kind": "heterogeneous", "sync": "async", "script": "experiments/flashsac_go1.py",
+                       "eval_every": 1_000_000, "envs_per_worker": 64},
     "mjx_ppo": {"kind": "mjx", "sync": "lockstep", "script": "experiments/ppo_go1_mjx.py", "eval_every": 10_000_000,
                 "flags": ["--num_envs=8192"]},
     "mjx_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
@@ -77,7 +81,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--target", type=float, default=25.0, help="evaluation return to reach")
     ap.add_argument("--max_seconds", type=float, default=540.0, help="budget per run, from its launch")
     ap.add_argument("--num_workers", type=int, default=15)
-    ap.add_argument("--envs_per_worker", type=int, default=128)
+    ap.add_argument("--envs_per_worker", type=int, default=None,
+                    help="envs per worker for heterogeneous runs (default: the config's, else 128)")
     ap.add_argument("--eval_envs", type=int, default=32)
     ap.add_argument("--eval_every", type=int, default=0, help="env steps between evaluations (0: the config's)")
     ap.add_argument("--extra", action="append", default=[], help="one more flag for the experiment script")
@@ -219,7 +224,8 @@ def command(name: str, cfg: dict[str, Any], seed: int, logdir: str, args: argpar
            f"--eval_every={args.eval_every or cfg['eval_every']}", f"--eval_envs={args.eval_envs}",
            "--total_steps=10000000000"]
     if cfg["kind"] == "heterogeneous":
-        cmd += [f"--num_workers={args.num_workers}", f"--envs_per_worker={args.envs_per_worker}"]
+        envs = args.envs_per_worker or cfg.get("envs_per_worker", 128)
+        cmd += [f"--num_workers={args.num_workers}", f"--envs_per_worker={envs}"]
     else:
         cmd += [f"--max_seconds={args.max_seconds}"]
     return cmd + list(cfg.get("flags", [])) + list(args.extra)

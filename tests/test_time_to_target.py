@@ -133,3 +133,17 @@ def test_cli_requires_a_configuration(capsys):
     with pytest.raises(SystemExit):
         ttt.parse_args(["--only", "no_such_config"])
     assert "unknown configurations" in capsys.readouterr().err
+
+
+def test_command_sizes_heterogeneous_runs_per_config():
+    """Off-policy configs default to 64 envs per worker, PPO/APPO to 128; --envs_per_worker overrides both;
+    MJX runs get their own budget flag instead of worker flags."""
+    def flags(name, argv=()):
+        args = ttt.parse_args(["--only", name, *argv])
+        return ttt.command(name, ttt.CONFIGS[name], 0, "/tmp/x", args)
+
+    assert "--envs_per_worker=64" in flags("flashsac_async") and "--envs_per_worker=64" in flags("fastsac_async")
+    assert "--envs_per_worker=128" in flags("ppo_lockstep")
+    assert "--envs_per_worker=32" in flags("fastsac_async", ["--envs_per_worker", "32"])
+    mjx = flags("mjx_ppo", ["--max_seconds", "100"])
+    assert "--max_seconds=100.0" in mjx and not any(f.startswith("--num_workers") for f in mjx)
