@@ -399,14 +399,14 @@ def report(records: list[dict[str, Any]], het_best: str | None = None, mjx: str 
         h = ratios["heterogeneous_vs_mjx"]
         tp = f"; env steps/s ratio {h['throughput_ratio']:.2f}x" if "throughput_ratio" in h else ""
         lines.append(f"Heterogeneous ({h['heterogeneous']}) vs MJX ({h['mjx']}): time to {target:g} "
-                     f"{RELATION[h['relation']]}{h['speedup']:.2f}x faster "
+                     f"speed-up {RELATION[h['relation']]}{h['speedup']:.2f}x "
                      f"(MJX evaluation time excluded: {h['speedup_mjx_eval_excluded']:.2f}x){tp}; goal >= 3x: "
                      f"{'met' if h['met'] else 'not met'}.")
     if "async_vs_lockstep" in ratios:
         a = ratios["async_vs_lockstep"]
         tp = f"; env steps/s ratio {a['throughput_ratio']:.2f}x" if "throughput_ratio" in a else ""
         lines.append(f"Asynchronous (appo_async) vs lock-step (ppo_lockstep): time to {target:g} "
-                     f"{RELATION[a['relation']]}{a['speedup']:.2f}x faster{tp}; goal >= 1.5x: "
+                     f"speed-up {RELATION[a['relation']]}{a['speedup']:.2f}x{tp}; goal >= 1.5x: "
                      f"{'met' if a['met'] else 'not met'}.")
     machines = sorted({f"{r['machine']['gpus'][0] if r['machine'].get('gpus') else 'no GPU'}, "
                        f"{r['machine']['cpus_usable']} CPU cores" for r in records if "machine" in r})
