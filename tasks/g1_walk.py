@@ -258,15 +258,16 @@ class G1WalkFlat(walking.WalkingTask):
         keys = POLICY_JOINTS[self.config.policy_joints]
         return [i for i in range(model.nu) if any(k in model.joint(model.actuator_trnid[i, 0]).name for k in keys)]
 
-    def critic_extra(self, s) -> np.ndarray:
-        return np.concatenate([s["base_z"][:, None], s["contact"].astype(np.float64), s["feet_h"]], axis=1)
+    def critic_extra(self, s):
+        xp = shim.namespace(s["base_z"])
+        return xp.concat([s["base_z"][:, None], xp.astype(s["contact"], s["base_z"].dtype), s["feet_h"]], axis=1)
 
     def reward_terms(self, s, action, done):
         c = self.config
         return reward_terms(
-            command=self.command, local_linvel=s["local_linvel"], gyro=s["gyro"], gravity=s["gravity"],
+            command=s["command"], local_linvel=s["local_linvel"], gyro=s["gyro"], gravity=s["gravity"],
             base_z=s["base_z"], joint_pos=s["joint_pos"], default_pose=self.default_pose,
-            pose_weight=self.pose_weight, action=action, last_act=self.last_act,
+            pose_weight=self.pose_weight, action=action, last_act=s["last_act"],
             actuator_force=s["actuator_force"], contact=s["contact"], stance=s["stance"], feet_h=s["feet_h"],
             feet_vel=s["feet_vel"], done=done, tracking_sigma=c.tracking_sigma,
             base_height_target=c.base_height_target, swing_height_target=c.swing_height_target,

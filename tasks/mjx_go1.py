@@ -93,6 +93,69 @@ class StepOut(NamedTuple):
     episode_length: jax.Array
 
 
+# --------------------------------------------------------------------------------------------------
+# Task-independent pieces (also used by ``tasks/mjx_walking.py``)
+# --------------------------------------------------------------------------------------------------
+def match_euler_damping(model: mujoco.MjModel) -> None:
+    """Sets ``mjDSBL_EULERDAMP`` when no dof has damping (see ``Go1JoystickMjx.__init__``); with damping,
+    MuJoCo and MJX both integrate the damping implicitly and nothing changes."""
+    if not model.dof_damping.any():
+        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+
+
+def physics_step(mjx_model: Any, nsub: int, fields: dict, data: Any, ctrl: jax.Array) -> Any:
+    """One control step (``nsub`` ``mjx.step`` with ``ctrl`` held) of every env; ``fields`` are per-env
+    model fields (leading env axis) replacing ``mjx_model``'s."""
+
+    def one(f, d, u):
+        model = mjx_model.tree_replace(f)
+        return jax.lax.fori_loop(0, nsub, lambda _, x: mjx.step(model, x), d.replace(ctrl=u))
+
+    with jax.default_matmul_precision(PRECISION):
+        return jax.vmap(one)(fields, data, ctrl)
+
+
+def forward(mjx_model: Any, template: Any, fields: dict, qpos: jax.Array, qvel: jax.Array, ctrl: jax.Array) -> Any:
+    """Fresh data (``template``: time 0, zero warm start) at (qpos, qvel, ctrl) with ``mjx.forward`` run, per env."""
+
+    def one(f, qp, qv, u):
+        return mjx.forward(mjx_model.tree_replace(f), template.replace(qpos=qp, qvel=qv, ctrl=u))
+
+    with jax.default_matmul_precision(PRECISION):
+        return jax.vmap(one)(fields, qpos, qvel, ctrl)
+
+
+def reset_in_batches(ended: jax.Array, carry: Any, key: jax.Array, batch: int, reset_rows: Any) -> Any:
+    """Replaces the ``ended [n]`` rows of ``carry`` (a pytree, env axis first) with fresh episodes,
+    ``batch`` envs per pass of a ``while_loop`` (their indices gathered with ``nonzero``, scattered back),
+    so the reset work scales with the number of ended envs. ``reset_rows(k_reset, k_obs, rows)`` returns
+    the pytree of ``carry``'s structure for env indices ``rows [batch]``."""
+    n = ended.shape[0]
+    drop = lambda full, part, idx: full.at[idx].set(part, mode="drop")  # idx == n: padding, dropped
+
+    def one_pass(c):
+        pending, carry, key = c
+        key, k_reset, k_obs = jax.random.split(key, 3)
+        idx = jnp.nonzero(pending, size=batch, fill_value=n)[0]
+        part = reset_rows(k_reset, k_obs, jnp.minimum(idx, n - 1))
+        carry = jax.tree_util.tree_map(lambda full, p: drop(full, p, idx), carry, part)
+        return drop(pending, False, idx), carry, key
+
+    return jax.lax.while_loop(lambda c: jnp.any(c[0]), one_pass, (ended, carry, key))[1]
+
+
+def mask_unstable(data: Any, next_obs: jax.Array, next_cobs: jax.Array, reward: jax.Array, scaled: dict):
+    """MuJoCo's divergence guard on the final state (non-finite or > ``MAX_VAL`` qpos/qvel/qacc) widened by
+    non-finite outputs; returns (unstable [M], and the outputs zeroed where unstable) as ``finish_step``."""
+    big = lambda x: jnp.any(~jnp.isfinite(x) | (jnp.abs(x) > MAX_VAL), axis=-1)
+    unstable = big(data.qpos) | big(data.qvel) | big(data.qacc)
+    unstable |= ~(jnp.all(jnp.isfinite(next_obs), axis=1) & jnp.all(jnp.isfinite(next_cobs), axis=1)
+                  & jnp.isfinite(reward))
+    zero_where = lambda x: jnp.where(unstable.reshape(-1, *([1] * (x.ndim - 1))), 0.0, x)
+    return (unstable, zero_where(next_obs), zero_where(next_cobs), zero_where(reward),
+            {k: zero_where(v) for k, v in scaled.items()})
+
+
 class Go1JoystickMjx:
     """``reset(key, dr=None) -> EnvState``; ``step(state, action) -> (EnvState, StepOut)``; pure and
     jit-able (call them inside ``jax.jit``); ``spec`` as the CPU task's."""
@@ -108,12 +171,11 @@ class Go1JoystickMjx:
         self.reset_batch = int(reset_batch or min(num_envs, max(32, math.ceil(num_envs / 16))))
         self.model = gj.build_spec(c).compile()
         m = self.model
-        if not m.dof_damping.any():
-            # MuJoCo's Euler integrates the solver's qacc unless some dof has damping; MJX's re-solves
-            # M qacc = qfrc_smooth + qfrc_constraint whenever eulerdamp is on, which with the 1-iteration
-            # solver is not the solver's qacc (measured: 4.5 rad/s apart after one substep). Disabling
-            # eulerdamp, a no-op for MuJoCo here, makes MJX integrate what MuJoCo integrates.
-            m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+        # MuJoCo's Euler integrates the solver's qacc unless some dof has damping; MJX's re-solves
+        # M qacc = qfrc_smooth + qfrc_constraint whenever eulerdamp is on, which with the 1-iteration
+        # solver is not the solver's qacc (measured: 4.5 rad/s apart after one substep). Disabling
+        # eulerdamp when no dof has damping, a no-op for MuJoCo, makes MJX integrate what MuJoCo integrates.
+        match_euler_damping(m)
         self.mjx_model = mjx.put_model(m, impl="jax")
         self._template = mjx.make_data(self.mjx_model)
         self.sensor_index = gj.sensor_index(m)
@@ -182,22 +244,11 @@ class Go1JoystickMjx:
     # ---- physics ------------------------------------------------------------------------------
     def physics_step(self, fields: dict, data: Any, ctrl: jax.Array) -> Any:
         """One control step (``nsub`` ``mjx.step`` with ``ctrl`` held) of every env."""
-
-        def one(f, d, u):
-            model = self.mjx_model.tree_replace(f)
-            return jax.lax.fori_loop(0, self.nsub, lambda _, x: mjx.step(model, x), d.replace(ctrl=u))
-
-        with jax.default_matmul_precision(PRECISION):
-            return jax.vmap(one)(fields, data, ctrl)
+        return physics_step(self.mjx_model, self.nsub, fields, data, ctrl)
 
     def forward(self, fields: dict, qpos: jax.Array, qvel: jax.Array, ctrl: jax.Array) -> Any:
         """Fresh data (time 0, zero warm start) at (qpos, qvel, ctrl) with ``mjx.forward`` run, per env."""
-
-        def one(f, qp, qv, u):
-            return mjx.forward(self.mjx_model.tree_replace(f), self._template.replace(qpos=qp, qvel=qv, ctrl=u))
-
-        with jax.default_matmul_precision(PRECISION):
-            return jax.vmap(one)(fields, qpos, qvel, ctrl)
+        return forward(self.mjx_model, self._template, fields, qpos, qvel, ctrl)
 
     # ---- task ---------------------------------------------------------------------------------
     def _sensors(self, data: Any) -> dict:
@@ -232,27 +283,17 @@ class Go1JoystickMjx:
                           self._noise(key, data.qpos.shape[0]))
 
     def _reset_ended(self, ended, state, data, info, until, obs, cobs, key):
-        """Fresh episodes for the ``ended`` envs, ``reset_batch`` of them per pass of a ``while_loop``
-        (gathered with ``nonzero``, scattered back), so the reset work scales with the number of ended
-        envs instead of ``mjx.forward`` on the whole batch at every step."""
-        n, k = self.num_envs, self.reset_batch
-        drop = lambda full, part, idx: full.at[idx].set(part, mode="drop")  # idx == n: padding, dropped
+        """Fresh episodes for the ``ended`` envs, ``reset_batch`` of them per pass (``reset_in_batches``),
+        so the reset work scales with the number of ended envs instead of ``mjx.forward`` on the whole
+        batch at every step."""
 
-        def one_pass(c):
-            pending, data, info, until, obs, cobs, key = c
-            key, k_reset, k_obs = jax.random.split(key, 3)
-            idx = jnp.nonzero(pending, size=k, fill_value=n)[0]
-            rows = jnp.minimum(idx, n - 1)
+        def reset_rows(k_reset, k_obs, rows):
             fields = jax.tree_util.tree_map(lambda x: x[rows], state.model_fields)
             r_data, r_info, r_until = self._reset_draws(k_reset, fields, state.pose_offset[rows])
             r_obs, r_cobs = self._observe(r_data, r_info, k_obs)
-            scatter = lambda full, part: drop(full, part, idx)
-            return (drop(pending, False, idx), jax.tree_util.tree_map(scatter, data, r_data),
-                    jax.tree_util.tree_map(scatter, info, r_info), scatter(until, r_until), scatter(obs, r_obs),
-                    scatter(cobs, r_cobs), key)
+            return r_data, r_info, r_until, r_obs, r_cobs
 
-        carry = jax.lax.while_loop(lambda c: jnp.any(c[0]), one_pass, (ended, data, info, until, obs, cobs, key))
-        return carry[1:6]
+        return reset_in_batches(ended, (data, info, until, obs, cobs), key, self.reset_batch, reset_rows)
 
     def reset(self, key: jax.Array, dr: dict | None = None) -> EnvState:
         """Every env at the start of an episode; ``dr`` (numpy or jax, the CPU task's keys) fixes the
@@ -308,13 +349,7 @@ class Go1JoystickMjx:
         until = jnp.where(due, self._exp_steps(kc[3], n), until)
         steps = state.steps + 1
         # Divergence and non-finite outputs: truncate with zeroed outputs (the CPU task's finish_step).
-        big = lambda x: jnp.any(~jnp.isfinite(x) | (jnp.abs(x) > MAX_VAL), axis=-1)
-        unstable = big(data.qpos) | big(data.qvel) | big(data.qacc)
-        unstable |= ~(jnp.all(jnp.isfinite(next_obs), axis=1) & jnp.all(jnp.isfinite(next_cobs), axis=1)
-                      & jnp.isfinite(reward))
-        zero_where = lambda x: jnp.where(unstable.reshape(-1, *([1] * (x.ndim - 1))), 0.0, x)
-        next_obs, next_cobs, reward = zero_where(next_obs), zero_where(next_cobs), zero_where(reward)
-        scaled = {k: zero_where(v) for k, v in scaled.items()}
+        unstable, next_obs, next_cobs, reward, scaled = mask_unstable(data, next_obs, next_cobs, reward, scaled)
         term = done & ~unstable
         trunc = ((steps >= c.episode_length) | unstable) & ~term
         ep_ret, ep_len = state.episode_return + reward, state.episode_length + 1

@@ -109,7 +109,10 @@ def position_servos(spec: mujoco.MjSpec, kp: Sequence[float], kd: Sequence[float
         a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         a.forcerange = [-limit, limit]
-        spec.joint(a.target).damping = np.full_like(np.asarray(spec.joint(a.target).damping), kd[i])
+        joint = spec.joint(a.target)
+        damping = np.zeros_like(np.asarray(joint.damping, dtype=np.float64))
+        damping.flat[0] = kd[i]  # MuJoCo 4's damping is (linear, v|v|, v^3) coefficients: linear only
+        joint.damping = damping if damping.ndim else float(kd[i])
     return np.array(limits)
 
 
@@ -210,6 +213,66 @@ def actor_obs(gyro, gravity, joint_pos, joint_vel, last_act, command, phase_feat
     return xp.concat([noisy[:, : 6 + 2 * n], last_act, command, phase_feat], axis=-1)
 
 
+def read_sensors(sensordata, qpos, qvel, layout: Mapping[str, Any]) -> dict:
+    """The physical readings the observation and rewards use at one state, from batched ``sensordata
+    [M, nsensordata]``, ``qpos [M, nq]`` and ``qvel [M, nv]``.
+
+    ``layout`` (``WalkingTask.sensor_layout()``) holds the sensor addresses and foot / joint indices.
+    Returns gyro, local_linvel, orientation, gravity, feet_h / feet_vel / contact ([M, F], foot order),
+    actuator_force, base_z, joint_pos / joint_vel (policy joints). The task adds the gait clock's
+    ``phase`` and ``stance`` ([M, F]) and the episode state ``command`` and ``last_act``.
+    """
+    xp = shim.namespace(sensordata)
+    index = layout["index"]
+
+    def get(name):
+        adr, dim = index[name]
+        return sensordata[:, adr : adr + dim]
+
+    feet = layout["feet"]
+    s = {k: get(k) for k in ("gyro", "local_linvel", "orientation")}
+    s["gravity"] = go1.gravity_from_quat(s["orientation"])
+    s["feet_h"] = xp.stack([get(f"{f}_pos")[:, 2] for f in feet], axis=1) - layout["sole_offset"]
+    s["feet_vel"] = xp.stack([get(f"{f}_vel") for f in feet], axis=1)
+    s["contact"] = xp.stack([get(f"{f}_contact")[:, 0] for f in feet], axis=1) > 0
+    adr = layout["force_adr"]
+    s["actuator_force"] = sensordata[:, adr : adr + layout["nu"]]
+    s["base_z"] = qpos[:, 2]
+    s["joint_pos"] = qpos[:, layout["qadr"]]
+    s["joint_vel"] = qvel[:, layout["vadr"]]
+    return s
+
+
+def observe(s, last_act, noise, default_pose, phase_groups, critic_extra: Callable):
+    """(actor obs, critic obs) from ``s`` (``read_sensors`` plus ``phase`` and ``command``): the actor
+    observation with ``last_act``, then the critic's clean local linear velocity and ``critic_extra(s)``."""
+    xp = shim.namespace(s["gyro"])
+    obs = actor_obs(s["gyro"], s["gravity"], s["joint_pos"], s["joint_vel"], last_act, s["command"],
+                    phase_features(s["phase"][:, phase_groups]), default_pose, noise)
+    cobs = xp.concat([obs, s["local_linvel"], critic_extra(s)], axis=1)
+    return obs, cobs
+
+
+def step_math(s, action, noise, default_pose, phase_groups, config: Any, scales: Mapping[str, float], dt: float,
+              reward_terms: Callable, critic_extra: Callable):
+    """Everything a walking step computes after the physics, on the shim (numpy for the CPU task, jax for
+    ``tasks/mjx_walking.py``).
+
+    ``s``: ``read_sensors`` at the post-step state plus the gait clock's ``phase`` / ``stance`` and the
+    per-env episode state ``command [M, 3]`` and ``last_act [M, n]`` (the previous action); ``action
+    [M, n]``: the action just applied; ``noise``: the observation noise (draws times scales).
+    ``reward_terms(s, action, done) -> {name: [M]}`` and ``critic_extra(s) -> [M, k]`` are the task's hooks.
+    Returns (next_obs, next_critic_obs, done [M] bool, scaled terms {name: dt * scale * term}, reward [M]);
+    the observation shows ``action`` as the last action.
+    """
+    done = terminated(s["gravity"], s["base_z"], config.max_tilt_deg, config.min_base_height)
+    scaled = go1.scale_terms(reward_terms(s, action, done), scales, dt)
+    xp = shim.namespace(s["gyro"])
+    reward = xp.sum(xp.stack(list(scaled.values())), axis=0)
+    next_obs, next_cobs = observe(s, action, noise, default_pose, phase_groups, critic_extra)
+    return next_obs, next_cobs, done, scaled, reward
+
+
 # --------------------------------------------------------------------------------------------------
 # The numpy task
 # --------------------------------------------------------------------------------------------------
@@ -308,14 +371,17 @@ class WalkingTask(base.Task):
     def policy_actuators(self, model: mujoco.MjModel) -> Sequence[int]:
         return range(model.nu)
 
-    def reward_terms(self, s: Mapping[str, np.ndarray], action: np.ndarray, done: np.ndarray
-                     ) -> dict[str, np.ndarray]:
-        """Unscaled terms {name: [M]} in ``REWARD_TERMS`` order; ``self.last_act`` is still the previous action."""
+    def reward_terms(self, s: Mapping[str, Any], action: Any, done: Any) -> dict[str, Any]:
+        """Unscaled terms {name: [M]} in ``REWARD_TERMS`` order from ``s`` (``read_sensors`` plus ``command``
+        and ``last_act``, the previous action). Shim-written and reading nothing per-env from ``self`` (only
+        constants: config, default pose, weights), so the MJX variant calls it on jax arrays."""
         raise NotImplementedError
 
-    def critic_extra(self, s: Mapping[str, np.ndarray]) -> np.ndarray:
-        """[M, k] privileged signals appended to the critic observation after the local linear velocity."""
-        return np.zeros((self.num_envs, 0))
+    def critic_extra(self, s: Mapping[str, Any]) -> Any:
+        """[M, k] privileged signals appended to the critic observation after the local linear velocity
+        (shim-written, like ``reward_terms``)."""
+        xp = shim.namespace(s["base_z"])
+        return xp.zeros((s["base_z"].shape[0], 0), dtype=s["base_z"].dtype)
 
     def sample_dr(self) -> dict[str, np.ndarray]:
         raise NotImplementedError
@@ -328,27 +394,25 @@ class WalkingTask(base.Task):
         adr, dim = self._sensor[name]
         return self.sim.sensordata[:, adr : adr + dim]
 
+    def sensor_layout(self) -> dict[str, Any]:
+        """What ``read_sensors`` needs besides the arrays: sensor addresses, foot and joint indices."""
+        return {"index": self._sensor, "feet": self.FEET, "sole_offset": self.sole_offset,
+                "force_adr": self._force_adr, "nu": self.model.nu, "qadr": self._qadr, "vadr": self._vadr}
+
     def _sensors(self) -> dict[str, np.ndarray]:
-        """Everything the observation and rewards read, at the current state."""
-        s = {k: self._s(k) for k in ("gyro", "local_linvel", "orientation")}
-        s["gravity"] = go1.gravity_from_quat(s["orientation"])
-        s["feet_h"] = np.stack([self._s(f"{f}_pos")[:, 2] for f in self.FEET], axis=1) - self.sole_offset
-        s["feet_vel"] = np.stack([self._s(f"{f}_vel") for f in self.FEET], axis=1)
-        s["contact"] = np.stack([self._s(f"{f}_contact")[:, 0] for f in self.FEET], axis=1) > 0
-        s["actuator_force"] = self.sim.sensordata[:, self._force_adr : self._force_adr + self.model.nu]
-        s["base_z"] = self.sim.qpos[:, 2]
-        s["joint_pos"] = self.sim.qpos[:, self._qadr]
-        s["joint_vel"] = self.sim.qvel[:, self._vadr]
-        s["phase"] = gait_phase(self.steps * self.dt, self.config.gait_frequency, self.gait_offsets)
-        s["stance"] = stance_mask(s["phase"], self.config.stance_fraction)
+        """Everything the observation and rewards read, at the current state (with the episode state)."""
+        c = self.config
+        s = read_sensors(self.sim.sensordata, self.sim.qpos, self.sim.qvel, self.sensor_layout())
+        s["phase"] = gait_phase(self.steps * self.dt, c.gait_frequency, self.gait_offsets)
+        s["stance"] = stance_mask(s["phase"], c.stance_fraction)
+        s["command"], s["last_act"] = self.command, self.last_act
         return s
 
+    def _noise(self) -> np.ndarray:
+        return self._rng.uniform(-1.0, 1.0, size=(self.num_envs, self._noise_scale.size)) * self._noise_scale
+
     def _observe(self, s: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        noise = self._rng.uniform(-1.0, 1.0, size=(self.num_envs, self._noise_scale.size)) * self._noise_scale
-        obs = actor_obs(s["gyro"], s["gravity"], s["joint_pos"], s["joint_vel"], self.last_act, self.command,
-                        phase_features(s["phase"][:, self.phase_groups]), self.default_pose, noise)
-        cobs = np.concatenate([obs, s["local_linvel"], self.critic_extra(s)], axis=1)
-        return obs, cobs
+        return observe(s, self.last_act, self._noise(), self.default_pose, self.phase_groups, self.critic_extra)
 
     def _ctrl(self, action: np.ndarray) -> np.ndarray:
         ctrl = np.tile(self.default_ctrl, (self.num_envs, 1))
@@ -389,14 +453,17 @@ class WalkingTask(base.Task):
         a = np.nan_to_num(np.asarray(action, dtype=np.float64).reshape(self.num_envs, -1), nan=0.0)
         if c.action_clip > 0:
             a = np.clip(a, -c.action_clip, c.action_clip)
-        unstable = self.sim.step(self._ctrl(a))
+        return self._after_physics(a, self.sim.step(self._ctrl(a)))
+
+    def _after_physics(self, a: np.ndarray, unstable: np.ndarray) -> base.StepOut:
+        """The rest of ``step`` once ``self.sim`` holds the post-physics state and sensors (the MJX parity
+        tests call it on a state set with ``sim.set_state``)."""
+        c = self.config
         self.steps += 1
-        s = self._sensors()
-        done = terminated(s["gravity"], s["base_z"], c.max_tilt_deg, c.min_base_height)
-        scaled = go1.scale_terms(self.reward_terms(s, a, done), self.scales, self.dt)
-        reward = np.sum(np.stack(list(scaled.values())), axis=0)
+        next_obs, next_cobs, done, scaled, reward = step_math(
+            self._sensors(), a, self._noise(), self.default_pose, self.phase_groups, c, self.scales, self.dt,
+            self.reward_terms, self.critic_extra)
         self.last_act = a  # the observation shows the action just applied
-        next_obs, next_cobs = self._observe(s)
         self._push(done)
         out, n_unstable = go1.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
                                           self.steps >= c.episode_length, self._reset_and_observe)

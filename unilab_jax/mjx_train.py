@@ -3,8 +3,8 @@
 The way MuJoCo Playground (brax) or IsaacLab users train, built from this project's own pieces so that
 only the placement of the simulation differs from the heterogeneous runtime:
 
-* the environment is the MJX variant of the CPU task (``tasks/mjx_go1.py``: same model, observation,
-  reward, resets and domain randomisation, float32);
+* the environment is the MJX variant of the CPU task (``tasks/mjx_go1.py`` for Go1, ``tasks/mjx_walking.py``
+  for Go2 / G1: same model, observation, reward, resets and domain randomisation, float32);
 * the algorithms are the same modules: ``act`` (shim-written, here on jax arrays), the networks, and
   the jitted learner updates of ``algos/ppo_jax.py`` and ``algos/offpolicy_jax.py`` (their ``_update``
   is traced into the training step below);
@@ -49,7 +49,9 @@ import numpy as np
 from unilab_jax.algos import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import MetricLogger
 
-MJX_TASKS = {"go1_joystick_flat": "tasks.mjx_go1"}
+# task name -> module with ``make(config, num_envs)`` (the walking module picks the task from the config's type)
+MJX_TASKS = {"go1_joystick_flat": "tasks.mjx_go1", "go2_joystick_flat": "tasks.mjx_walking",
+             "g1_walk_flat": "tasks.mjx_walking"}
 
 
 @dataclasses.dataclass(frozen=True)

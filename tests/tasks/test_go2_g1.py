@@ -296,7 +296,7 @@ def test_g1_termination_low_pelvis_and_tilt():
     task = tasks.make("g1_walk_flat", 3, seed=0, overrides=CLEAN)
     task.reset()
     qpos, qvel = task.sim.qpos.copy(), np.zeros_like(task.sim.qvel)
-    qpos[0, 2] = 0.25  # pelvis below 0.3 m, upright
+    qpos[0, 2] = 0.2  # pelvis below 0.3 m, upright (the floor pushes the sunk feet up ~5 cm in the step)
     r = math.radians(70.0) / 2
     qpos[1, 3:7] = [math.cos(r), 0.0, math.sin(r), 0.0]  # pitched 70 degrees
     task.sim.set_state(np.arange(3), qpos, qvel)
