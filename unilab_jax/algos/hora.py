@@ -92,3 +92,33 @@ def student_latent(adapt: dict, history_norm: RunningStats, obs: Any) -> tuple[A
     frames = xp.reshape(obs[..., : h * d], (*obs.shape[:-1], h, d))
     x = normalizer.normalize(history_norm, frames)
     return xp.tanh(nets_temporal.adaptation_apply(adapt, x)), x
+
+
+# ---------------------------------------------------------------------------------------------
+# Flag and spec checks, learner construction (both stages: JAX learners on a ``<task>_hist`` task)
+# ---------------------------------------------------------------------------------------------
+PLATFORMS = ("jax",)
+
+
+def check_run(algo: str, platform: str, task_config: Any, task_needed: str) -> None:
+    """``algo``'s flag checks before anything starts (``cli.build_run``): ValueError with the reason;
+    ``task_needed`` says which task variant the stage needs (the message's tail)."""
+    if platform not in PLATFORMS:
+        raise ValueError(f"{algo} has a learner for --platform={'/'.join(PLATFORMS)} only, not {platform!r}")
+    if not getattr(task_config, "history_extrinsics", False):
+        raise ValueError(f"{algo} needs {task_needed}")
+
+
+def check_spec(algo: str, spec: Any) -> None:
+    if not getattr(spec, "extrinsics_in_obs", False):
+        raise ValueError(f"{algo} needs a '<task>_hist' task with history_extrinsics=True, got {spec.name!r}")
+
+
+def make_learner(algo: str, learner: str, platform: str, config: Any, spec: Any):
+    """``hora_jax.<learner>(config, spec)`` after ``check_spec``; the stages have JAX learners only."""
+    check_spec(algo, spec)
+    if platform == "jax":
+        from unilab_jax.algos import hora_jax
+
+        return getattr(hora_jax, learner)(config, spec)
+    raise ValueError(f"{algo} has no learner for platform {platform!r} (JAX only)")

@@ -32,7 +32,6 @@ from unilab_jax.algos import hora
 
 SYNC = "async"
 BUFFER = "trajectory"
-PLATFORMS = ("jax",)
 
 __all__ = ["SYNC", "BUFFER", "Config", "act", "extras", "make_learner", "check_run", "check_spec"]
 
@@ -74,24 +73,15 @@ def act(weights: dict[str, Any], obs: Any, noise: Any, deterministic: bool = Fal
 
 def check_run(platform: str, task_config: Any, config: HoraStudentConfig) -> None:
     """Flag checks before anything starts (``cli.build_run``): ValueError with the reason."""
-    if platform not in PLATFORMS:
-        raise ValueError(f"hora_student has a learner for --platform={'/'.join(PLATFORMS)} only, not {platform!r}")
-    if not getattr(task_config, "history_extrinsics", False):
-        raise ValueError("hora_student needs the teacher's '<task>_hist' task variant with history_extrinsics=True "
-                         "(the extrinsics are the regression target's input, never the policy's)")
+    hora.check_run("hora_student", platform, task_config, "the teacher's '<task>_hist' task variant with "
+                   "history_extrinsics=True (the extrinsics are the regression target's input, never the policy's)")
     if not config.teacher_checkpoint:
         raise ValueError("hora_student needs teacher_checkpoint (the teacher run's checkpoints folder)")
 
 
 def check_spec(spec: Any) -> None:
-    if not getattr(spec, "extrinsics_in_obs", False):
-        raise ValueError(f"hora_student needs a '<task>_hist' task with history_extrinsics=True, got {spec.name!r}")
+    hora.check_spec("hora_student", spec)
 
 
 def make_learner(platform: str, config: HoraStudentConfig, spec: Any):
-    check_spec(spec)
-    if platform == "jax":
-        from unilab_jax.algos.hora_jax import StudentLearner
-
-        return StudentLearner(config, spec)
-    raise ValueError(f"hora_student has no learner for platform {platform!r} (JAX only)")
+    return hora.make_learner("hora_student", "StudentLearner", platform, config, spec)

@@ -17,7 +17,6 @@ from unilab_jax.algos.ppo import PPOConfig, extras, gaussian_act
 
 SYNC = "lockstep"
 BUFFER = "trajectory"
-PLATFORMS = ("jax",)
 
 __all__ = ["SYNC", "BUFFER", "Config", "act", "extras", "make_learner", "check_run", "check_spec"]
 
@@ -40,22 +39,13 @@ def act(weights: dict[str, Any], obs: Any, noise: Any, deterministic: bool = Fal
 
 def check_run(platform: str, task_config: Any, config: Any) -> None:
     """Flag checks before anything starts (``cli.build_run``): ValueError with the reason."""
-    if platform not in PLATFORMS:
-        raise ValueError(f"hora_teacher has a learner for --platform={'/'.join(PLATFORMS)} only, not {platform!r}")
-    if not getattr(task_config, "history_extrinsics", False):
-        raise ValueError("hora_teacher needs a task variant with extrinsics in the observation: a '<task>_hist' task "
-                         "(tasks/history.py) with history_extrinsics=True")
+    hora.check_run("hora_teacher", platform, task_config, "a task variant with extrinsics in the observation: a "
+                   "'<task>_hist' task (tasks/history.py) with history_extrinsics=True")
 
 
 def check_spec(spec: Any) -> None:
-    if not getattr(spec, "extrinsics_in_obs", False):
-        raise ValueError(f"hora_teacher needs a '<task>_hist' task with history_extrinsics=True, got {spec.name!r}")
+    hora.check_spec("hora_teacher", spec)
 
 
 def make_learner(platform: str, config: HoraTeacherConfig, spec: Any):
-    check_spec(spec)
-    if platform == "jax":
-        from unilab_jax.algos.hora_jax import TeacherLearner
-
-        return TeacherLearner(config, spec)
-    raise ValueError(f"hora_teacher has no learner for platform {platform!r} (JAX only)")
+    return hora.make_learner("hora_teacher", "TeacherLearner", platform, config, spec)
