@@ -23,7 +23,6 @@ Prints a table and writes JSON with machine info (``bench/throughput.py``'s).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -38,7 +37,7 @@ for p in (REPO, HERE):
         sys.path.insert(0, p)
 
 import numpy as np  # noqa: E402
-from replay_store import GO1, random_rows  # noqa: E402
+from replay_store import GO1, random_rows, write_json  # noqa: E402
 
 from unilab_jax.runtime import buffers  # noqa: E402
 
@@ -171,10 +170,8 @@ def main(argv=None) -> dict:
         sp = f"{r['speedup_vs_baseline']:.2f}x" if r["speedup_vs_baseline"] else ""
         print(f"{r['impl']:24s} {r['batch']:7d} {r['calls']:6d} {r['median_s'] * 1e3:10.1f} {r['min_s'] * 1e3:8.1f} "
               f"{r['rows_per_s']:11,.0f} {r['mb_per_s']:8,.0f} {sp:>8s}")
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(result, f, indent=2, default=float)
-    print(f"\nwrote {args.out}")
+    print()
+    write_json(args.out, result)
     return result
 
 

@@ -208,11 +208,16 @@ def main(argv=None) -> dict:
         shutil.rmtree(work, ignore_errors=True)
     out = {"machine": info, "args": vars(args), "row_bytes": row_bytes, "store_write_mb_per_s": write_mb_s,
            "loadavg_at_end": list(os.getloadavg()), "results": results}
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(out, f, indent=2, default=float)
-    print(f"wrote {args.out}")
+    write_json(args.out, out)
     return out
+
+
+def write_json(path: str, result: dict) -> None:
+    """Writes a benchmark's result (numpy scalars as floats), creating the folder; says where."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "w") as f:
+        json.dump(result, f, indent=2, default=float)
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":
