@@ -68,7 +68,8 @@ def _sync(platform_name: str, tree) -> None:
         mx.eval([v for _, v in tree_flatten(tree)])
 
 
-def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config) -> dict[str, float]:
+def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config,
+            profile_dir: str = "") -> dict[str, float]:
     from unilab_jax import xp as shim
 
     xp = shim.get(platform_name)
@@ -85,6 +86,13 @@ def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config)
         state, metrics = learner.update(state, batch)
         _sync(platform_name, (state, metrics))
         times.append(time.perf_counter() - t0)
+    if profile_dir and platform_name == "jax":
+        import jax
+
+        with jax.profiler.trace(os.path.join(profile_dir, algo), create_perfetto_trace=True):
+            for _ in range(3):
+                state, metrics = learner.update(state, batch)
+            _sync(platform_name, (state, metrics))
     return {"first_call_s": first, "steady_s": float(np.median(times)), "repeats": repeats}
 
 
@@ -107,6 +115,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--recipe", help="experiment script (e.g. experiments/fastsac_go1.py) whose RECIPE overrides the "
                     "defaults of the algorithms named by --algos (its batch_size wins over --offpolicy_batch)")
+    ap.add_argument("--profile_dir", default="", help="JAX: also trace 3 steady calls per algorithm with "
+                    "jax.profiler into DIR/<algo> (TensorBoard/XProf trace plus a Perfetto JSON)")
     ap.add_argument("--out", default=os.path.join(REPO, "bench", "results", "learner_update_local.json"))
     args = ap.parse_args()
     recipe = _recipe(args.recipe) if args.recipe else {}
@@ -123,7 +133,7 @@ def main() -> None:
             batch = _replay_batch(rng, config.updates_per_call, config.batch_size)
             shape = f"[{config.updates_per_call}, {config.batch_size}] ({config.updates_per_call} gradient steps)"
         for plat in args.platforms:
-            result = measure(algo, plat, batch, args.repeats, config)
+            result = measure(algo, plat, batch, args.repeats, config, args.profile_dir)
             rows.append({"algo": algo, "platform": plat, "batch": shape, **result})
             print(f"{algo:9s} {plat:4s} {shape:48s} first {result['first_call_s']:7.2f} s  "
                   f"steady {result['steady_s'] * 1e3:9.1f} ms", flush=True)
@@ -132,7 +142,7 @@ def main() -> None:
     machine = {"hostname": platform.node(), "date": datetime.datetime.now(datetime.timezone.utc).isoformat(),
                "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
                "python": platform.python_version(), "jax": jax.__version__, "jax_devices": str(jax.devices()),
-               "recipe": args.recipe}
+               "recipe": args.recipe, "xla_flags": os.environ.get("XLA_FLAGS", "")}
     if "mlx" in args.platforms:
         import mlx.core as mx
 

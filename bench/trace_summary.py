@@ -1,0 +1,102 @@
+"""Where the time goes in a ``jax.profiler`` trace: device kernels ranked by total time.
+
+    python bench/trace_summary.py DIR [--top 25] [--out summary.json]
+
+DIR is a ``jax.profiler.trace(..., create_perfetto_trace=True)`` folder (e.g. one written by
+``bench/learner_update.py --profile_dir``); the newest ``perfetto_trace.json.gz`` under it is read.
+Device processes are those whose name contains ``/device:`` (``/host:CPU`` when no device process
+exists, i.e. a CPU-only trace). Kernels are grouped into matrix multiplies (cuBLAS/CUTLASS/XLA GEMM
+names), reductions, other fusions and copies/memsets, so the table answers "compute-bound on GEMMs or
+not". Busy time is the sum of kernel durations; the span is first kernel start to last kernel end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import gzip
+import json
+import os
+import re
+
+GEMM = re.compile(r"gemm|xmma|cutlass|cublas|matmul|dot|wgmma|sm\d+_", re.IGNORECASE)
+REDUCE = re.compile(r"reduce|reduction", re.IGNORECASE)
+COPY = re.compile(r"memcpy|memset|copy|transpose", re.IGNORECASE)
+
+
+def category(name: str) -> str:
+    if GEMM.search(name):
+        return "gemm"
+    if REDUCE.search(name):
+        return "reduction"
+    if COPY.search(name):
+        return "copy/memset"
+    return "other fusion"
+
+
+def load(folder: str) -> list[dict]:
+    paths = sorted(glob.glob(os.path.join(folder, "**", "perfetto_trace.json.gz"), recursive=True),
+                   key=os.path.getmtime)
+    if not paths:
+        raise SystemExit(f"no perfetto_trace.json.gz under {folder}")
+    with gzip.open(paths[-1]) as f:
+        data = json.load(f)
+    return data["traceEvents"] if isinstance(data, dict) else data
+
+
+def device_events(events: list[dict]) -> tuple[list[dict], list[str]]:
+    names = {e["pid"]: e["args"]["name"] for e in events
+             if e.get("ph") == "M" and e.get("name") == "process_name"}
+    device = [pid for pid, n in names.items() if "/device:" in n]
+    pids = set(device or [pid for pid, n in names.items() if n.startswith("/host:CPU")])
+    threads = {(e["pid"], e["tid"]): e["args"]["name"] for e in events
+               if e.get("ph") == "M" and e.get("name") == "thread_name"}
+    chosen = [e for e in events if e.get("ph") == "X" and e["pid"] in pids]
+    if device:  # device processes also carry per-stream "XLA Ops"/"XLA Modules" summary lines: keep kernels
+        kernel_threads = {k for k, n in threads.items() if k[0] in pids and "Stream" in n}
+        if kernel_threads:
+            chosen = [e for e in chosen if (e["pid"], e["tid"]) in kernel_threads]
+    return chosen, sorted(names[p] for p in pids)
+
+
+def summarise(events: list[dict], top: int) -> dict:
+    total = collections.defaultdict(float)
+    count = collections.Counter()
+    for e in events:
+        total[e["name"]] += e["dur"]
+        count[e["name"]] += 1
+    busy = sum(total.values())
+    span = (max(e["ts"] + e["dur"] for e in events) - min(e["ts"] for e in events)) if events else 0.0
+    by_cat = collections.defaultdict(float)
+    for name, t in total.items():
+        by_cat[category(name)] += t
+    rows = [{"name": n, "category": category(n), "total_ms": t / 1e3, "calls": count[n], "share": t / busy}
+            for n, t in sorted(total.items(), key=lambda kv: -kv[1])[:top]]
+    return {"busy_ms": busy / 1e3, "span_ms": span / 1e3, "kernels": len(events),
+            "by_category_ms": {k: v / 1e3 for k, v in sorted(by_cat.items(), key=lambda kv: -kv[1])}, "top": rows}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("folder")
+    ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--out", default="")
+    args = ap.parse_args()
+    events, processes = device_events(load(args.folder))
+    s = summarise(events, args.top)
+    s["processes"] = processes
+    print(f"processes: {', '.join(processes)}")
+    print(f"{s['kernels']} kernels, busy {s['busy_ms']:.1f} ms over a span of {s['span_ms']:.1f} ms")
+    for cat, ms in s["by_category_ms"].items():
+        print(f"  {cat:14s} {ms:9.1f} ms  {ms / max(s['busy_ms'], 1e-9):6.1%}")
+    print(f"{'total ms':>9s} {'calls':>6s} {'share':>6s}  kernel")
+    for r in s["top"]:
+        print(f"{r['total_ms']:9.2f} {r['calls']:6d} {r['share']:6.1%}  {r['name'][:110]}")
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(s, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()
