@@ -93,6 +93,24 @@ def test_value_and_grad_with_aux(name):
     np.testing.assert_allclose(xp.asnumpy(grads["w"]), [4.0, -8.0, 12.0])
 
 
+def test_materialize_keeps_values_structure_and_gradients(xp):
+    x = np.arange(6, dtype=np.float32).reshape(2, 3)
+    tree = (xp.from_numpy(x), {"s": xp.from_numpy(np.float32(2.0))})
+    out = xp.jit(xp.materialize)(tree)
+    np.testing.assert_array_equal(xp.asnumpy(out[0]), x)
+    assert float(xp.asnumpy(out[1]["s"])) == 2.0
+    if xp.name == "numpy":
+        return
+    grad = xp.value_and_grad(lambda a: xp.sum(xp.square(xp.materialize(a))))(tree[0])[1]
+    np.testing.assert_allclose(xp.asnumpy(grad), 2 * x)
+
+
+def test_jax_materialize_is_a_barrier_in_the_compiled_program():
+    jx = shim.get("jax")
+    text = jx.jit(lambda a: jx.materialize(jx.exp(a)) * 2.0).lower(jx.from_numpy(np.ones(3, np.float32))).as_text()
+    assert "optimization_barrier" in text
+
+
 def test_numpy_has_no_autodiff():
     with pytest.raises(NotImplementedError):
         shim.get("numpy").value_and_grad(lambda x: x)

@@ -16,7 +16,7 @@ its array library and adds the few things the standard lacks, with the same mean
   ``uniform(key, shape, low, high)``, ``randint(key, shape, low, high)`` -- explicit keys on every
   backend, never a global generator;
 * ``value_and_grad(fn, has_aux=False)`` (gradient of the first argument), ``jit(fn)``,
-  ``stop_gradient``;
+  ``stop_gradient``, ``materialize`` (a fusion barrier under jit, identity elsewhere);
 * tree utilities ``tree_map`` / ``tree_leaves`` over dicts, lists, tuples and NamedTuples;
 * ``scan(f, init, xs, reverse=False)`` over the leading axis;
 * a few numerics outside the standard: ``logsumexp``, ``softmax``, ``log_softmax``, ``softplus``,
@@ -187,6 +187,13 @@ class Backend:
     def stop_gradient(self, x: Any) -> Any:
         return x
 
+    def materialize(self, tree: Any) -> Any:
+        """``tree`` unchanged; under a compiler (jax) the values are computed once, in memory, before any
+        consumer runs, instead of being fused into (and recomputed by) each consumer. Use it where a
+        cheap reduction feeds a large broadcast (XLA may otherwise redo the reduction per output).
+        """
+        return tree
+
     def jit(self, fn: Callable, **kwargs: Any) -> Callable:
         return fn
 
@@ -304,6 +311,9 @@ class JaxBackend(Backend):
 
     def stop_gradient(self, x: Any) -> Any:
         return self._jax.lax.stop_gradient(x)
+
+    def materialize(self, tree: Any) -> Any:
+        return self._jax.lax.optimization_barrier(tree)
 
     def jit(self, fn: Callable, **kwargs: Any) -> Callable:
         return self._jax.jit(fn, **kwargs)

@@ -25,8 +25,14 @@ def categorical_projection(atoms: Any, next_probs: Any, rewards: Any, discounts:
       atoms in proportion to distance. Written scatter-free as a dense [B, K, K] triangular-kernel
       weight, ``out[b, i] = sum_j clip(1 - |z[b, j] - atoms[i]| / spacing, 0, 1) p[b, j]`` (memory
       B * K^2; under jit the weight fuses into the reduction).
+
+    The inputs are materialised first: otherwise XLA (GPU) fuses their producers, e.g. the softmax
+    of the target critic with its per-row sum, into the [B, K, K] reduction and recomputes them for
+    each of the K^2 weights (measured on an H100, B 8192, K 101: 6.0 ms instead of 0.27 ms;
+    bench/c51_projection.py).
     """
     xp = shim.namespace(atoms, next_probs, rewards, discounts)
+    next_probs, rewards, discounts = xp.materialize((next_probs, rewards, discounts))
     k = int(atoms.shape[0])
     z = rewards[:, None] + discounts[:, None] * atoms[None, :]  # [B, K]
     z = xp.clip(z, atoms[0], atoms[k - 1])
