@@ -261,7 +261,7 @@ class Trainer:
         interrupted = interrupted or self._stop.is_set()
         if not interrupted and evaluated_at != counters["env_steps"]:
             evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
-        last_eval = evaluator.close()
+        last_eval = evaluator.close(cancel=interrupted)
         self.logger.close()
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
                    "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
@@ -277,7 +277,13 @@ class Trainer:
 class _AsyncEvaluator:
     """Deterministic evaluations in a background thread on a snapshot of the weights, so lock-step
     workers are not held up. ``eval/wall_s`` is when the snapshot was taken (the training time that
-    produced the policy); ``eval/done_wall_s`` when its evaluation finished."""
+    produced the policy); ``eval/done_wall_s`` when its evaluation finished.
+
+    At most one evaluation waits behind the running one: a newer snapshot replaces a waiting one (an
+    evaluation slower than ``--eval_every`` would otherwise queue without bound and hold the end of
+    the run for minutes); ``skipped`` counts the replaced ones. ``close(cancel=True)`` (an interrupted
+    run) drops the waiting one.
+    """
 
     def __init__(self, trainer: Trainer):
         from concurrent.futures import ThreadPoolExecutor
@@ -285,21 +291,30 @@ class _AsyncEvaluator:
         self._trainer = trainer
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eval")
         self._futures: list[Any] = []
+        self.skipped = 0
 
     def submit(self, weights: dict, counters: dict[str, int], wall_s: float) -> None:
+        if self._futures and self._futures[-1].cancel():  # still waiting: replace it with the newer snapshot
+            self._futures.pop()
+            self.skipped += 1
+            log.warning("evaluation at an earlier step skipped: evaluations are slower than --eval_every "
+                        "(%d skipped so far)", self.skipped)
         self._futures.append(self._pool.submit(self._run, weights, counters, wall_s))
 
     def _run(self, weights: dict, counters: dict[str, int], wall_s: float) -> dict[str, float]:
         tr = self._trainer
         result = tr.evaluate(weights, seed=counters["updates"])
-        result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0})
+        result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0,
+                       "eval/skipped": float(self.skipped)})
         tr.logger.log(counters["env_steps"], result)
         return result
 
-    def close(self) -> dict[str, float]:
-        """Waits for pending evaluations; returns the last one's result ({} if none ran)."""
-        self._pool.shutdown(wait=True)
-        return self._futures[-1].result() if self._futures else {}
+    def close(self, cancel: bool = False) -> dict[str, float]:
+        """Waits for the running evaluation (and the waiting one unless ``cancel``); returns the
+        newest finished result ({} if none finished)."""
+        self._pool.shutdown(wait=True, cancel_futures=cancel)
+        done = [f for f in self._futures if not f.cancelled()]
+        return done[-1].result() if done else {}
 
 
 class _Prefetcher:

@@ -1,0 +1,60 @@
+"""The trainer's background evaluator: slow evaluations do not queue up behind a fast training loop."""
+
+import threading
+import time
+
+from unilab_jax.trainer import _AsyncEvaluator
+
+
+class _SlowTrainer:
+    """Stands in for the Trainer: ``evaluate`` blocks until released and records what it evaluated."""
+
+    def __init__(self):
+        self.t0 = time.time()
+        self.release = threading.Event()
+        self.evaluated: list[int] = []
+        self.logged: list[tuple[int, dict]] = []
+        self.logger = self
+
+    def evaluate(self, weights, seed):
+        self.release.wait(timeout=10)
+        self.evaluated.append(weights["step"])
+        return {"eval/return": float(weights["step"])}
+
+    def log(self, step, scalars):
+        self.logged.append((step, scalars))
+
+
+def _submit(ev, step):
+    ev.submit({"step": step}, {"updates": step, "env_steps": step}, wall_s=float(step))
+
+
+def test_a_newer_snapshot_replaces_the_waiting_one():
+    tr = _SlowTrainer()
+    ev = _AsyncEvaluator(tr)
+    for step in range(1, 6):  # 1 runs (blocked); 2, 3, 4 each replaced by the next; 5 waits
+        _submit(ev, step)
+        time.sleep(0.05)
+    assert ev.skipped == 3
+    tr.release.set()
+    last = ev.close()
+    assert tr.evaluated == [1, 5]
+    assert last["eval/return"] == 5.0 and last["eval/skipped"] == 3.0
+    assert [s for s, _ in tr.logged] == [1, 5]
+
+
+def test_close_with_cancel_drops_the_waiting_evaluation():
+    tr = _SlowTrainer()
+    ev = _AsyncEvaluator(tr)
+    _submit(ev, 1)
+    time.sleep(0.05)
+    _submit(ev, 2)
+    threading.Timer(0.2, tr.release.set).start()
+    t0 = time.time()
+    last = ev.close(cancel=True)
+    assert tr.evaluated == [1] and last["eval/return"] == 1.0
+    assert time.time() - t0 < 5
+
+
+def test_close_without_evaluations_returns_nothing():
+    assert _AsyncEvaluator(_SlowTrainer()).close() == {}
