@@ -86,10 +86,18 @@ def test_sac_td3_learn_cartpole(tmp_path, algo, script, steps):
 # Measured at 500k env steps (~2k gradient steps), seeds 0 (this test), 1, 2: FastSAC 191, 178, 190;
 # FlashSAC 182, 198, 185 (both pass ~150 around 300-400k). Threshold 80: random ~35, observed minimum 178.
 # Test runtime: ~20-25 s each on an idle VM, 38-47 s with other jobs on the 2 cores.
-@pytest.mark.parametrize("algo,recipe", [("fastsac", FASTSAC_TINY), ("flashsac", FLASHSAC_TINY)])
-def test_fastsac_flashsac_improve_on_cartpole(tmp_path, algo, recipe):
-    config, summary, rows = _train(tmp_path, algo, recipe, 500_000)
+# The FastSAC run is repeated with the replay mirrored in (here: CPU) JAX memory and sampled there, the path
+# GPU learners take by default (seed 0: 190).
+@pytest.mark.parametrize("algo,recipe,on_device", [("fastsac", FASTSAC_TINY, "off"), ("flashsac", FLASHSAC_TINY, "off"),
+                                                   ("fastsac", FASTSAC_TINY, "on")])
+def test_fastsac_flashsac_improve_on_cartpole(tmp_path, algo, recipe, on_device):
+    config, summary, rows = _train(tmp_path, algo, recipe, 500_000, replay_on_device=on_device)
     _check_replay_loop(config, summary, rows, 500_000)
+    uploads = [r["perf/replay_upload_rows"] for r in rows if "perf/replay_upload_rows" in r]
+    if on_device == "on":  # every transition reaches the device once (the last few after the final sample aside)
+        assert len(uploads) == summary["updates"] and 0.9 * summary["env_steps"] < sum(uploads) <= summary["env_steps"]
+    else:
+        assert not uploads
     assert summary["eval/return"] >= 80.0, summary
 
 
@@ -111,6 +119,22 @@ def test_serial_replay_loop_holds_the_ratio(tmp_path):
     _check_replay_loop(config, summary, rows, 2_000)
     # Serial workers step only when the learner asks: the ratio is met, not merely bounded.
     assert summary["updates"] * 2 >= 0.05 * (summary["env_steps"] - 256) * 0.8
+
+
+def test_serial_replay_loop_on_device_holds_the_ratio(tmp_path):
+    recipe = {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32, "updates_per_call": 2,
+              "publish_every": 4, "learning_starts": 256, "replay_capacity": 4_096, "utd": 0.05}
+    config, summary, rows = _train(tmp_path, "sac", recipe, 2_000, serial=True, eval_envs=2, replay_on_device="on")
+    _check_replay_loop(config, summary, rows, 2_000)
+    assert summary["updates"] * 2 >= 0.05 * (summary["env_steps"] - 256) * 0.8
+    assert all(r["perf/replay_upload_rows"] > 0 for r in rows if "loss/critic_loss" in r)
+
+
+def test_replay_on_device_refuses_what_it_cannot_do(tmp_path):
+    with pytest.raises(ValueError, match="auto, on or off"):
+        _train(tmp_path, "sac", {"batch_size": 32}, 100, replay_on_device="gpu")
+    with pytest.raises(ValueError, match="jax platform"):
+        _train(tmp_path, "sac", {"batch_size": 32}, 100, replay_on_device="on", platform="mlx")
 
 
 def test_noise_hold_redraws_every_n_steps_per_env():

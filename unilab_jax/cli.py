@@ -54,6 +54,9 @@ flags.DEFINE_string("replay_dir", "", "off-policy: persistent replay store folde
 flags.DEFINE_float("replay_disk_gb", 10.0, "disk budget of --replay_dir; the oldest chunks are deleted past it")
 flags.DEFINE_float("replay_hot_fraction", 0.5, "with --replay_dir: share of each minibatch drawn from shared memory")
 flags.DEFINE_integer("replay_chunk_rows", 0, "with --replay_dir: transitions per committed chunk (0: ~16 MiB)")
+flags.DEFINE_enum("replay_on_device", "auto", ["auto", "on", "off"], "off-policy, jax learner: keep a copy of the "
+                  "replay rings in accelerator memory and sample minibatches there (auto: on unless JAX runs on the "
+                  "CPU or --replay_dir is set)")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
@@ -105,6 +108,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
             raise FlagError(str(e)) from e
     if FLAGS.replay_dir and module.BUFFER != "replay":
         raise FlagError(f"--replay_dir: {algo} does not use a replay buffer")
+    if FLAGS.replay_on_device == "on" and (module.BUFFER != "replay" or FLAGS.platform != "jax" or FLAGS.replay_dir):
+        raise FlagError("--replay_on_device=on needs an off-policy algorithm, --platform=jax and no --replay_dir")
     if not 0.0 <= FLAGS.replay_hot_fraction <= 1.0:
         raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {FLAGS.replay_hot_fraction}")
     if FLAGS.replay_disk_gb <= 0 or FLAGS.replay_chunk_rows < 0:
@@ -124,7 +129,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     resume=FLAGS.resume, eval_every=FLAGS.eval_every, eval_envs=FLAGS.eval_envs,
                     checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial, replay_dir=FLAGS.replay_dir,
                     replay_disk_gb=FLAGS.replay_disk_gb, replay_hot_fraction=FLAGS.replay_hot_fraction,
-                    replay_chunk_rows=FLAGS.replay_chunk_rows)
+                    replay_chunk_rows=FLAGS.replay_chunk_rows, replay_on_device=FLAGS.replay_on_device)
     return run, module, config, task_overrides
 
 

@@ -86,7 +86,12 @@ def convert(tree: Any, xp: shim.Backend) -> Any:
 
 
 def to_numpy(tree: Any) -> Any:
-    """Every array leaf as a numpy array."""
+    """Every array leaf as a numpy array (jax leaves come back in one transfer, not one per leaf)."""
+    leaves = shim.tree_leaves(tree)
+    if any(type(a).__module__.startswith("jax") for a in leaves):
+        import jax
+
+        tree = jax.device_get(tree)
     return convert(tree, shim.get("numpy"))
 
 

@@ -50,6 +50,9 @@ class RunConfig:
     replay_disk_gb: float = 10.0  # disk budget of the store; the oldest chunks are deleted past it
     replay_hot_fraction: float = 0.5  # share of each minibatch drawn from the shared-memory rings
     replay_chunk_rows: int = 0  # transitions per committed chunk (0: ~16 MiB); a SIGKILL loses at most one
+    # Off-policy, JAX learner: mirror the rings in accelerator memory and sample there (unilab_jax/device_replay.py).
+    # "auto": on when JAX's default backend is not the CPU and there is no replay_dir; "on" / "off" force it.
+    replay_on_device: str = "auto"
 
 
 def _learner_platform(platform: str) -> Any:
@@ -106,6 +109,23 @@ class Trainer:
         if replay is not None:
             meta["replay"] = replay
         return meta
+
+    def _device_replay(self, pool: Any) -> Any:
+        """The accelerator-side replay mirror, or None (see ``RunConfig.replay_on_device``)."""
+        mode = self.run.replay_on_device
+        if mode not in ("auto", "on", "off"):
+            raise ValueError(f"replay_on_device must be auto, on or off, got {mode!r}")
+        if mode == "off" or self.run.platform != "jax" or self.run.replay_dir:
+            if mode == "on":
+                raise ValueError("replay_on_device=on needs the jax platform and no replay_dir")
+            return None
+        import jax
+
+        if mode == "auto" and jax.default_backend() == "cpu":
+            return None
+        from unilab_jax.device_replay import DeviceReplay
+
+        return DeviceReplay(pool.buffer, REPLAY_FIELDS)
 
     def _open_replay_store(self) -> Any:
         """The persistent replay store of ``run.replay_dir`` (None when off).
@@ -206,7 +226,7 @@ class Trainer:
             pool.start()
             pool.publish(weights, counters["version"])
             source = (_ReplaySource(pool, self.xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
-                                    self._resumed_meta.get("replay"))
+                                    self._resumed_meta.get("replay"), self._device_replay(pool))
                       if replay else _TrajectorySource(pool, self.xp, self.spec.reward_terms))
             prefetch = _Prefetcher(source.produce, inline=run.serial)
             t_last, steps_last = time.time(), counters["env_steps"]
@@ -430,6 +450,9 @@ class _ReplaySource:
       ``(seed, k)``, and checkpoints record the ratio's bookkeeping, so a resumed run samples and
       paces exactly as an uninterrupted one (a batch the prefetcher drew but the loop never used is
       drawn again after the restart).
+    * With a device mirror (``mirror``, :class:`~unilab_jax.device_replay.DeviceReplay`): each call first
+      copies the newly committed rows to the accelerator, then draws the [U, B] row indices on the host
+      (same seeded generator) and gathers the minibatch on the device.
     * With a persistent store (``--replay_dir``): before sampling, the rows the workers committed
       since the last call are copied to the store (:class:`RingSpiller`, once each); minibatches mix
       the rings (``hot_fraction``) and the disk (:class:`TieredSampler`); a checkpoint first commits
@@ -442,8 +465,8 @@ class _ReplaySource:
     _RNG_TAG = 0x5A4D  # keeps the sampling stream apart from other streams derived from the run seed
 
     def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int, store: Any = None,
-                 hot_fraction: float = 0.5, saved: dict[str, Any] | None = None):
-        self._pool, self._xp, self._cfg = pool, xp, cfg
+                 hot_fraction: float = 0.5, saved: dict[str, Any] | None = None, mirror: Any = None):
+        self._pool, self._xp, self._cfg, self._mirror = pool, xp, cfg, mirror
         self._seed = seed % 2**32
         self._steps0 = counters["env_steps"]  # env steps before this process (resume)
         self._updates0 = counters["updates"]  # batches used before this process: the next batch's RNG index
@@ -514,16 +537,25 @@ class _ReplaySource:
         with self._lock:
             if self._stopped:
                 return None
-            if self._store is None:
-                batch = pool.sample(u * b, rng)
+            scalars = {}
+            if self._mirror is not None:
+                if pool.serial:
+                    pool.pump(1)  # the env step pool.sample takes in serial mode
+                else:
+                    pool._maybe_check_workers()
+                scalars["perf/replay_upload_rows"] = float(self._mirror.sync())
+                out = self._mirror.gather(self._mirror.sample(u * b, rng).reshape(u, b))
             else:
-                pool.pump(1)  # serial mode: the env step pool.sample takes on the ring-only path
-                self._spiller.spill()
-                batch = self._tiers.sample(u, b, rng)
+                if self._store is None:
+                    batch = pool.sample(u * b, rng)
+                else:
+                    pool.pump(1)  # serial mode: the env step pool.sample takes on the ring-only path
+                    self._spiller.spill()
+                    batch = self._tiers.sample(u, b, rng)
+                out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in REPLAY_FIELDS}
         self._grad_steps += u
         self._produced += 1
-        out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in REPLAY_FIELDS}
-        scalars = {"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1}
+        scalars.update({"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1})
         return out, {"scalars": scalars, "episodes": 0}
 
     def advance(self, counters: dict[str, int], stats: dict) -> bool:

@@ -503,6 +503,34 @@ class ReplayBuffer:
             pending, n = bad, int(bad.size)
         raise SlotCorruptError(f"{n} replay rows were overwritten during every one of {max_rounds} copies")
 
+    def read_new(self, synced: np.ndarray, fields: Iterable[str]) -> dict[str, Any]:
+        """Copies the rows committed since ``synced``, for a mirror of the rings (e.g. in GPU memory).
+
+        ``synced`` [W] holds each worker's count at the previous call (zeros at first). Returns
+        ``{"slots": [n] flat row indices (worker * capacity + g % capacity), "rows": {field: [n, ...]},
+        "lo": [W], "hi": [W]}``, where ``hi`` becomes the next call's ``synced``. A mirror that writes
+        every call's rows to their slots holds intact copies of global rows ``[lo, hi)`` of each worker
+        (the window to sample from), by :meth:`sample`'s seqlock argument: the copied range is
+        ``[max(synced, c0 + M - C), c0)``; after the copy and a barrier the counters ``c1`` give
+        ``lo = max(c1 + M - C, 0)``, below which a row may have been overwritten while it was copied
+        (or earlier); a row at or above ``lo`` was not, and no later call rewrites its slot before ``lo``
+        passes it.
+        """
+        cap, m = self.capacity, self.envs_per_worker
+        counts = self._count[:, 0].copy()
+        _barrier()
+        start = np.maximum(np.maximum(np.asarray(synced, np.int64), counts + m - cap), 0)
+        n = np.maximum(counts - start, 0)
+        total = int(n.sum())
+        worker = np.repeat(np.arange(self.num_workers, dtype=np.int64), n)
+        offset = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
+        slots = worker * cap + (np.repeat(start, n) + offset) % cap
+        rows = {name: np.empty((total, *self.fields[name][0]), self.fields[name][1]) for name in fields}
+        self._gather(slots, rows)
+        _barrier()
+        lo = np.maximum(self._count[:, 0].copy() + m - cap, 0)
+        return {"slots": slots, "rows": rows, "lo": np.minimum(lo, counts), "hi": counts}
+
     def _gather(self, rows: np.ndarray, dest: Mapping[str, np.ndarray]) -> None:
         """``dest[field][i] = flat[field][rows[i]]``: one ``np.take`` per field and part of the rows.
 
