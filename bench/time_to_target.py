@@ -313,12 +313,21 @@ def append(path: str, record: dict[str, Any]) -> None:
 # --------------------------------------------------------------------------------------------------
 # Report
 # --------------------------------------------------------------------------------------------------
+def group_name(record: dict[str, Any], records: list[dict[str, Any]]) -> str:
+    """The record's configuration, plus ``@ <commit>`` when that configuration has records of several commits."""
+    commits = {r.get("git_commit") for r in records if r["config"] == record["config"]}
+    if len(commits) < 2:
+        return record["config"]
+    return f"{record['config']} @ {(record.get('git_commit') or 'unknown')[:7]}"
+
+
 def aggregate(records: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """Per configuration: seeds, mean time to target (a run that missed counts at its budget, and the
-    mean is then a lower bound), mean env steps/s, best return."""
+    mean is then a lower bound), mean env steps/s, best return. A configuration measured at several
+    git commits (the code changed between runs) gets one group per commit, named ``config @ commit``."""
     out: dict[str, dict[str, Any]] = {}
-    for name in sorted({r["config"] for r in records}):
-        rs = [r for r in records if r["config"] == name]
+    for name in sorted({group_name(r, records) for r in records}):
+        rs = [r for r in records if group_name(r, records) == name]
         times = [r["time_to_target_s"] if r["reached"] else r["max_seconds"] for r in rs]
         train_times = [r["train_time_to_target_s"] if r["reached"] else r["max_seconds"] for r in rs]
         rates = [r["env_steps_per_s_median"] for r in rs if r.get("env_steps_per_s_median")]

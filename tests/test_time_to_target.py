@@ -88,6 +88,18 @@ def test_report_ratios_bounds_and_goals():
     assert named["heterogeneous_vs_mjx"]["speedup"] == pytest.approx(530 / 320)
 
 
+def test_report_separates_runs_of_one_configuration_at_different_commits():
+    old = _record("fastsac_async", "heterogeneous", "async", 0, None, reached=False, rate=8e4)
+    new = _record("fastsac_async", "heterogeneous", "async", 0, 160.0, rate=9e4)
+    old["git_commit"], new["git_commit"] = "a" * 40, "b" * 40
+    md, _ = ttt.report([old, new, _record("mjx_ppo", "mjx", "lockstep", 0, 200.0, rate=5e5)])
+    assert "| fastsac_async @ aaaaaaa | heterogeneous | 1 (0) |" in md
+    assert "| fastsac_async @ bbbbbbb | heterogeneous | 1 (1) | 160 |" in md
+    # One commit only: the plain configuration name.
+    md, _ = ttt.report([new, _record("mjx_ppo", "mjx", "lockstep", 0, 200.0, rate=5e5)])
+    assert "| fastsac_async | heterogeneous |" in md
+
+
 FAKE_EXPERIMENT = textwrap.dedent('''
     """Stands in for an experiment script: logs training rows and evaluations, then would run for minutes."""
     import argparse, json, os, time
