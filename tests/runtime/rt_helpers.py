@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import multiprocessing as mp
 import time
 
 import numpy as np
@@ -141,6 +143,31 @@ def replay_rows_ok(batch: dict) -> np.ndarray:
         want = v % 2 == 1 if arr.dtype == bool else v
         ok &= (arr == want).reshape(len(value), -1).all(axis=1)
     return ok
+
+
+@contextlib.contextmanager
+def racing_replay_writer(buf: ReplayBuffer, worker: int = 0, laps: int = 2):
+    """A spawned process writing ``worker``'s region of ``buf`` as fast as it can (``replay_writer``),
+    started and already ``laps`` times round the ring when the body runs; stopped (killed if it hangs)
+    after. Yields the process."""
+    ctx = mp.get_context("spawn")
+    stop = ctx.Event()
+    proc = ctx.Process(target=replay_writer, args=(buf.handle, worker, stop, 60.0))
+    try:
+        proc.start()
+        deadline = time.monotonic() + 30
+        while buf.count(worker) < laps * buf.capacity:
+            assert proc.is_alive() and time.monotonic() < deadline, f"writer not running (exit {proc.exitcode})"
+            time.sleep(0.001)
+        yield proc
+        assert proc.is_alive(), f"writer died (exit {proc.exitcode})"
+    finally:
+        stop.set()
+        if proc.pid is not None:
+            proc.join(10)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
 
 
 def replay_writer(handle, worker: int, stop, timeout: float) -> None:

@@ -3,7 +3,6 @@ with a writer racing the copies."""
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import time
 
 import numpy as np
@@ -83,35 +82,22 @@ def test_mirror_races_a_writer_process():
     """A process laps a small ring while the mirror syncs and samples: no gathered row is ever torn and
     every row drawn is among the newest ``capacity`` rows at the time of the sync."""
     buf = ReplayBuffer.create(FIELDS, num_workers=2, envs_per_worker=8, capacity=32)
-    ctx = mp.get_context("spawn")
-    stop = ctx.Event()
-    proc = ctx.Process(target=rt_helpers.replay_writer, args=(buf.handle, 0, stop, 60.0))
     try:
         for _ in range(4):
             write_replay_step(buf, 1)
-        proc.start()
-        deadline = time.monotonic() + 30
-        while buf.count(0) < 2 * buf.capacity:
-            assert proc.is_alive() and time.monotonic() < deadline, f"writer not running (exit {proc.exitcode})"
-            time.sleep(0.001)
-        mirror = DeviceReplay(buf, FIELDS)
-        rng = np.random.default_rng(4)
-        torn = calls = 0
-        t_end = time.monotonic() + 10
-        while calls < 200 and time.monotonic() < t_end:
-            mirror.sync()
-            hi = mirror.hi.copy()
-            batch = _gathered(mirror, 512, rng)
-            torn += int((~replay_rows_ok(batch)).sum())
-            worker, index = batch["b"] // 100_000, batch["b"] % 100_000
-            assert (index < hi[worker]).all() and (index >= hi[worker] - buf.capacity).all()
-            calls += 1
-        assert proc.is_alive(), f"writer died (exit {proc.exitcode})"
+        with rt_helpers.racing_replay_writer(buf, 0):
+            mirror = DeviceReplay(buf, FIELDS)
+            rng = np.random.default_rng(4)
+            torn = calls = 0
+            t_end = time.monotonic() + 10
+            while calls < 200 and time.monotonic() < t_end:
+                mirror.sync()
+                hi = mirror.hi.copy()
+                batch = _gathered(mirror, 512, rng)
+                torn += int((~replay_rows_ok(batch)).sum())
+                worker, index = batch["b"] // 100_000, batch["b"] % 100_000
+                assert (index < hi[worker]).all() and (index >= hi[worker] - buf.capacity).all()
+                calls += 1
         assert calls >= 20 and torn == 0, f"{torn} torn rows in {calls} batches"
     finally:
-        stop.set()
-        proc.join(10)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
         buf.close()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import time
 
 import numpy as np
@@ -120,31 +119,18 @@ def test_sampling_races_a_writer_process(capacity, batch):
     """A process writes a ring as fast as it can while the learner samples: no row is ever torn. A 4-step
     ring is lapped during most copies; 16,384-row batches are gathered by several threads (on 2+ cores)."""
     buf = ReplayBuffer.create(FIELDS, num_workers=2, envs_per_worker=8, capacity=capacity)
-    ctx = mp.get_context("spawn")
-    stop = ctx.Event()
-    proc = ctx.Process(target=rt_helpers.replay_writer, args=(buf.handle, 0, stop, 60.0))
     try:
         for _ in range(4):
             write_replay_step(buf, 1)  # a still region beside the racing one
-        proc.start()
-        deadline = time.monotonic() + 30
-        while buf.count(0) < 2 * buf.capacity:
-            assert proc.is_alive() and time.monotonic() < deadline, f"writer not running (exit {proc.exitcode})"
-            time.sleep(0.001)
-        rng = np.random.default_rng(2)
-        torn = calls = 0
-        t_end = time.monotonic() + 15
-        while (buf.resampled < 100 or calls < 100) and time.monotonic() < t_end:
-            got = buf.sample(batch, rng)
-            torn += int((~replay_rows_ok(got)).sum())
-            calls += 1
-        assert proc.is_alive(), f"writer died (exit {proc.exitcode})"
+        with rt_helpers.racing_replay_writer(buf, 0):
+            rng = np.random.default_rng(2)
+            torn = calls = 0
+            t_end = time.monotonic() + 15
+            while (buf.resampled < 100 or calls < 100) and time.monotonic() < t_end:
+                got = buf.sample(batch, rng)
+                torn += int((~replay_rows_ok(got)).sum())
+                calls += 1
         assert torn == 0, f"{torn} torn rows in {calls} batches"
         assert buf.resampled > 0, "the writer never overtook a copy: the race did not happen"
     finally:
-        stop.set()
-        proc.join(10)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
         buf.close()
