@@ -156,6 +156,28 @@ def mask_unstable(data: Any, next_obs: jax.Array, next_cobs: jax.Array, reward: 
             {k: zero_where(v) for k, v in scaled.items()})
 
 
+def finish_transition(state: Any, data: Any, steps: jax.Array, done: jax.Array, next_obs: jax.Array,
+                      next_cobs: jax.Array, reward: jax.Array, scaled: dict, episode_length: int) -> StepOut:
+    """The end of a control step shared by the MJX tasks (before any auto-reset): ``mask_unstable``, the end
+    flags (termination wins; divergence and ``steps >= episode_length`` truncate) and ``state``'s episode
+    sums plus this step. The new state takes ``obs``, ``critic_obs``, ``episode_return`` and
+    ``episode_length`` from the returned StepOut."""
+    unstable, next_obs, next_cobs, reward, scaled = mask_unstable(data, next_obs, next_cobs, reward, scaled)
+    term = done & ~unstable
+    trunc = ((steps >= episode_length) | unstable) & ~term
+    return StepOut(obs=next_obs, critic_obs=next_cobs, next_obs=next_obs, next_critic_obs=next_cobs, reward=reward,
+                   terminated=term, truncated=trunc, reward_terms=scaled,
+                   episode_return=state.episode_return + reward, episode_length=state.episode_length + 1)
+
+
+def restart_episodes(state: Any, ended: jax.Array, key: jax.Array, **fresh: Any) -> Any:
+    """``state`` with the ``ended`` envs' step counter and episode sums zeroed, the new ``key``, and ``fresh``
+    (the fields the auto-reset rewrote: data, info, obs, ...) replaced."""
+    return state._replace(steps=jnp.where(ended, 0, state.steps),
+                          episode_return=jnp.where(ended, 0.0, state.episode_return),
+                          episode_length=jnp.where(ended, 0, state.episode_length), key=key, **fresh)
+
+
 class Go1JoystickMjx:
     """``reset(key, dr=None) -> EnvState``; ``step(state, action) -> (EnvState, StepOut)``; pure and
     jit-able (call them inside ``jax.jit``); ``spec`` as the CPU task's."""
@@ -324,9 +346,8 @@ class Go1JoystickMjx:
         key, k_reset = jax.random.split(st.key)
         data, info, until, obs, cobs = self._reset_ended(ended, st, st.data, st.info, st.steps_until_next_cmd,
                                                          st.obs, st.critic_obs, k_reset)
-        new_state = st._replace(data=data, info=info, steps_until_next_cmd=until, steps=jnp.where(ended, 0, st.steps),
-                                obs=obs, critic_obs=cobs, episode_return=jnp.where(ended, 0.0, st.episode_return),
-                                episode_length=jnp.where(ended, 0, st.episode_length), key=key)
+        new_state = restart_episodes(st, ended, key, data=data, info=info, steps_until_next_cmd=until, obs=obs,
+                                     critic_obs=cobs)
         return new_state, out._replace(obs=obs, critic_obs=cobs)
 
     def transition(self, state: EnvState, data: Any, a: jax.Array) -> tuple[EnvState, StepOut]:
@@ -349,15 +370,10 @@ class Go1JoystickMjx:
         until = jnp.where(due, self._exp_steps(kc[3], n), until)
         steps = state.steps + 1
         # Divergence and non-finite outputs: truncate with zeroed outputs (the CPU task's finish_step).
-        unstable, next_obs, next_cobs, reward, scaled = mask_unstable(data, next_obs, next_cobs, reward, scaled)
-        term = done & ~unstable
-        trunc = ((steps >= c.episode_length) | unstable) & ~term
-        ep_ret, ep_len = state.episode_return + reward, state.episode_length + 1
-        new_state = state._replace(data=data, info=info, steps_until_next_cmd=until, steps=steps, obs=next_obs,
-                                   critic_obs=next_cobs, episode_return=ep_ret, episode_length=ep_len, key=key)
-        out = StepOut(obs=next_obs, critic_obs=next_cobs, next_obs=next_obs, next_critic_obs=next_cobs,
-                      reward=reward, terminated=term, truncated=trunc, reward_terms=scaled, episode_return=ep_ret,
-                      episode_length=ep_len)
+        out = finish_transition(state, data, steps, done, next_obs, next_cobs, reward, scaled, c.episode_length)
+        new_state = state._replace(data=data, info=info, steps_until_next_cmd=until, steps=steps, obs=out.obs,
+                                   critic_obs=out.critic_obs, episode_return=out.episode_return,
+                                   episode_length=out.episode_length, key=key)
         return new_state, out
 
 

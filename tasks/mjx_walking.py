@@ -32,8 +32,8 @@ of the CPU task (the *template*) that supplies everything that defines the task:
   key (``reset(key, dr=task.dr)`` reuses a CPU draw) and ``randomize_model`` as batched model fields --
   Go2: servo Kp (``actuator_gainprm[:, 0]`` and ``actuator_biasprm[:, 1]``), Kd (``dof_damping`` of the
   actuated dofs), base mass and base COM x; G1: floor friction, every body's mass, torso COM.
-* Divergence: ``mjx_go1.mask_unstable`` (MuJoCo's guard evaluated once per control step, on the final
-  state): such envs are truncated with zeroed outputs and reset, as on the CPU.
+* Divergence: ``mjx_go1.finish_transition`` / ``mask_unstable`` (MuJoCo's guard evaluated once per control
+  step, on the final state): such envs are truncated with zeroed outputs and reset, as on the CPU.
 
 Deviations from the CPU task: float32 physics and observation math (MuJoCo runs in float64); random draws
 come from jax keys (same distributions, different streams); the divergence check runs on the final substep
@@ -320,9 +320,7 @@ class WalkingMjx:
 
         data, info, obs, cobs = mg.reset_in_batches(ended, (st.data, st.info, st.obs, st.critic_obs), k_reset,
                                                     self.reset_batch, reset_rows)
-        new_state = st._replace(data=data, info=info, steps=jnp.where(ended, 0, st.steps), obs=obs, critic_obs=cobs,
-                                episode_return=jnp.where(ended, 0.0, st.episode_return),
-                                episode_length=jnp.where(ended, 0, st.episode_length), key=key)
+        new_state = mg.restart_episodes(st, ended, key, data=data, info=info, obs=obs, critic_obs=cobs)
         return new_state, out._replace(obs=obs, critic_obs=cobs)
 
     def transition(self, state: EnvState, data: Any, a: jax.Array) -> tuple[EnvState, StepOut]:
@@ -341,16 +339,10 @@ class WalkingMjx:
             lim = jnp.asarray(c.push_vel, jnp.float32)
             dv = jnp.where(due[:, None], _uniform(k_push, (n, 3), -lim, lim), 0.0)
             data = data.replace(qvel=data.qvel.at[:, 0:3].add(dv))
-        unstable, next_obs, next_cobs, reward, scaled = mg.mask_unstable(data, next_obs, next_cobs, reward, scaled)
-        term = done & ~unstable
-        trunc = ((steps >= c.episode_length) | unstable) & ~term
-        ep_ret, ep_len = state.episode_return + reward, state.episode_length + 1
+        out = mg.finish_transition(state, data, steps, done, next_obs, next_cobs, reward, scaled, c.episode_length)
         info = {"command": state.info["command"], "last_act": a}
-        new_state = state._replace(data=data, info=info, steps=steps, obs=next_obs, critic_obs=next_cobs,
-                                   episode_return=ep_ret, episode_length=ep_len, key=key)
-        out = StepOut(obs=next_obs, critic_obs=next_cobs, next_obs=next_obs, next_critic_obs=next_cobs,
-                      reward=reward, terminated=term, truncated=trunc, reward_terms=scaled, episode_return=ep_ret,
-                      episode_length=ep_len)
+        new_state = state._replace(data=data, info=info, steps=steps, obs=out.obs, critic_obs=out.critic_obs,
+                                   episode_return=out.episode_return, episode_length=out.episode_length, key=key)
         return new_state, out
 
 
