@@ -326,8 +326,9 @@ def aggregate(records: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     mean is then a lower bound), mean env steps/s, best return. A configuration measured at several
     git commits (the code changed between runs) gets one group per commit, named ``config @ commit``."""
     out: dict[str, dict[str, Any]] = {}
-    for name in sorted({group_name(r, records) for r in records}):
-        rs = [r for r in records if group_name(r, records) == name]
+    names = [group_name(r, records) for r in records]
+    for name in sorted(set(names)):
+        rs = [r for r, n in zip(records, names) if n == name]
         times = [r["time_to_target_s"] if r["reached"] else r["max_seconds"] for r in rs]
         train_times = [r["train_time_to_target_s"] if r["reached"] else r["max_seconds"] for r in rs]
         rates = [r["env_steps_per_s_median"] for r in rs if r.get("env_steps_per_s_median")]

@@ -54,9 +54,8 @@ class DeviceReplay:
         # 64-bit fields become 32-bit unless jax_enable_x64 (the learner's fields are float32 and bool).
         self.data = {f: jnp.zeros((self._rows, *ring.fields[f][0]), jax.dtypes.canonicalize_dtype(ring.fields[f][1]))
                      for f in self.fields}
-        self._synced = np.zeros(w, np.int64)
-        self.lo = np.zeros(w, np.int64)
-        self.hi = np.zeros(w, np.int64)
+        self.lo = np.zeros(w, np.int64)  # per worker: global rows [lo, hi) are intact on the device
+        self.hi = np.zeros(w, np.int64)  # (hi: the worker's count at the last sync)
         self.uploaded = 0  # rows copied to the device so far
 
     @property
@@ -66,7 +65,7 @@ class DeviceReplay:
 
     def sync(self) -> int:
         """Copies the rows committed since the last call to the device; returns how many."""
-        new = self._ring.read_new(self._synced, self.fields)
+        new = self._ring.read_new(self.hi, self.fields)
         n = int(new["slots"].size)
         if n:
             padded = max(MIN_UPLOAD_ROWS, 1 << (n - 1).bit_length())
@@ -80,7 +79,6 @@ class DeviceReplay:
                 rows[f] = pad
             self.data = _scatter(self.data, jnp.asarray(slots), rows)
             self.uploaded += n
-        self._synced = new["hi"]
         self.lo, self.hi = new["lo"], new["hi"]
         return n
 

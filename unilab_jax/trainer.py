@@ -539,10 +539,7 @@ class _ReplaySource:
                 return None
             scalars = {}
             if self._mirror is not None:
-                if pool.serial:
-                    pool.pump(1)  # the env step pool.sample takes in serial mode
-                else:
-                    pool._maybe_check_workers()
+                pool.before_sample()
                 scalars["perf/replay_upload_rows"] = float(self._mirror.sync())
                 out = self._mirror.gather(self._mirror.sample(u * b, rng).reshape(u, b))
             else:

@@ -581,12 +581,17 @@ class WorkerPool:
 
         In serial mode first runs ``serial_steps`` env steps per worker.
         """
+        self.before_sample(serial_steps)
+        return self.buffer.sample(batch_size, rng)  # type: ignore[union-attr]
+
+    def before_sample(self, serial_steps: int = 1) -> None:
+        """What precedes reading the replay rings: serial mode runs ``serial_steps`` env steps per worker,
+        process mode notices dead workers."""
         self._need("replay")
         if self.serial:
             self.pump(serial_steps)
         else:
             self._maybe_check_workers()
-        return self.buffer.sample(batch_size, rng)  # type: ignore[union-attr]
 
     def wait_replay(self, min_size: int, timeout: float = 600.0) -> int:
         """Blocks until the replay buffer holds ``min_size`` transitions (serial: pumps)."""
