@@ -152,6 +152,12 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
             print(f"error: {e}", file=sys.stderr)
             sys.exit(2)
         train(validated)
+        from unilab_jax.trainer import learner_busy
+
+        if learner_busy():  # a stopped run left a compile or an update running: do not wait for it
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(0)
 
     app.run(main)
 

@@ -37,9 +37,9 @@ import importlib
 import json
 import math
 import os
-import signal
 import threading
 import time
+from concurrent import futures
 from typing import Any, NamedTuple
 
 import jax
@@ -48,6 +48,8 @@ import numpy as np
 
 from unilab_jax.algos import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import MetricLogger
+from unilab_jax.runtime.ring import StopRequested
+from unilab_jax.trainer import LearnerThread, stop_on_signals, wait_result
 
 # task name -> module with ``make(config, num_envs)`` (the walking module picks the task from the config's type)
 MJX_TASKS = {"go1_joystick_flat": "tasks.mjx_go1", "go2_joystick_flat": "tasks.mjx_walking",
@@ -186,6 +188,10 @@ class MjxTrainer:
         carry, (metrics, stats) = jax.lax.scan(body, carry, None, length=self.run.iterations_per_call)
         return carry, jax.tree_util.tree_map(jnp.mean, metrics), jax.tree_util.tree_map(jnp.sum, stats)
 
+    def _call_and_scalars(self, carry: Any) -> tuple[Any, dict[str, float]]:
+        carry, metrics, stats = self._call(carry)
+        return carry, self._scalars(metrics, stats)  # float() waits for the call
+
     def _scalars(self, metrics: dict, stats: dict) -> dict[str, float]:
         out = {f"loss/{k}": float(v) for k, v in metrics.items()}
         s = {k: float(v) for k, v in stats.items()}
@@ -197,7 +203,7 @@ class MjxTrainer:
         out.update({f"reward/{k[5:]}": v / s["steps"] for k, v in s.items() if k.startswith("term/")})
         return out
 
-    def _warm_evaluation(self, weights: Any) -> threading.Thread:
+    def _warm_evaluation(self, weights: Any) -> futures.Future:
         """Compiles the evaluation (env reset/step, policy) in a background thread while the training call
         compiles, so the first evaluation does not stall training for a second compilation."""
 
@@ -208,13 +214,11 @@ class MjxTrainer:
             jax.block_until_ready(_accumulate(z, z.astype(jnp.int32), z > 0, z > 0, out.reward, out.terminated,
                                               out.truncated))
 
-        thread = threading.Thread(target=run, name="warm-eval", daemon=True)
-        thread.start()
-        return thread
+        return LearnerThread("jax", name="warm-eval").submit(run)
 
     def _evaluate(self, carry: Any, env_steps: int, evals: int, eval_time: float) -> float:
         """Runs and logs one evaluation; returns the seconds it took."""
-        self._warm.join()
+        wait_result(self._warm, self._stop)
         t = time.time()
         result = evaluate(self.eval_env, self._eval_act, self.weights(carry),
                           jax.random.PRNGKey(10_000 + self.run.seed * 1000 + evals))
@@ -228,8 +232,8 @@ class MjxTrainer:
     def train(self) -> dict[str, Any]:
         run = self.run
         self.last_eval: dict[str, float] = {}
-        prev_handler = signal.signal(signal.SIGTERM, lambda *_: self._stop.set()) \
-            if threading.current_thread() is threading.main_thread() else None
+        restore_signals = stop_on_signals(self._stop)
+        learner = LearnerThread("jax")
         carry = self.init_carry(jax.random.PRNGKey(run.seed))
         # A copy: the training call donates the carry's buffers.
         self._warm = self._warm_evaluation(jax.tree_util.tree_map(jnp.copy, self.weights(carry)))
@@ -246,8 +250,7 @@ class MjxTrainer:
                 if run.max_seconds and time.time() - self.t0 >= run.max_seconds:
                     reason = "max_seconds"
                     break
-                carry, metrics, stats = self._call(carry)
-                scalars = self._scalars(metrics, stats)  # float() waits for the call
+                carry, scalars = learner.call(self._stop, self._call_and_scalars, carry)
                 now = time.time()
                 env_steps += per_call
                 calls += 1
@@ -266,10 +269,13 @@ class MjxTrainer:
             if reason == "total_steps" and evaluated_at != env_steps:
                 self._evaluate(carry, env_steps, evals, eval_time)
             self.final_carry = carry  # the training state, env states (and replay ring) at the end
+        except StopRequested:  # a signal during a call (the first one compiles): not waited for
+            reason = "signal"
         finally:
-            if prev_handler is not None:
-                signal.signal(signal.SIGTERM, prev_handler)
-            self._warm.join()  # never leave a compiling thread behind at interpreter exit
+            restore_signals()
+            learner.close()
+            if not self._stop.is_set():
+                futures.wait([self._warm])  # never leave a compiling thread behind at interpreter exit
             self.logger.close()
         summary = {"env_steps": env_steps, "calls": calls, "wall_s": time.time() - self.t0,
                    "eval_s": eval_time, "stopped_by": reason, "logdir": os.path.abspath(run.logdir),

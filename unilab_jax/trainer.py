@@ -4,6 +4,12 @@ Workers collect into shared-memory slots while the learner updates; a prefetch t
 next batch and moves it to the device while the jitted update of the previous one runs. In
 lock-step mode the workers wait for the new weights; in async mode they never wait and the
 policy lag (learner version minus the version that produced each transition) is logged.
+
+Stopping: SIGINT and SIGTERM set a stop flag that every wait of the main thread checks. The learner's
+own calls (the update, whose first call compiles, and the weight download) run in a dedicated thread
+(:class:`LearnerThread`), so a stop never waits for them: a call in flight is abandoned, the state
+saved is the one of the last completed update, and the process leaves the abandoned call behind
+(``learner_busy()``; the CLI then exits without waiting for it).
 """
 
 from __future__ import annotations
@@ -16,6 +22,10 @@ import queue
 import signal
 import threading
 import time
+import weakref
+from collections.abc import Callable
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
 
 import numpy as np
@@ -23,6 +33,7 @@ import numpy as np
 from unilab_jax import nets
 from unilab_jax.algos import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import MetricLogger, ProgressBar
+from unilab_jax.runtime.ring import StopRequested
 
 log = logging.getLogger(__name__)
 
@@ -159,8 +170,9 @@ class Trainer:
         return store
 
     # -- evaluation ------------------------------------------------------------------------------
-    def evaluate(self, weights: dict, seed: int) -> dict[str, float]:
-        """Deterministic policy, one full episode in each of ``eval_envs`` environments."""
+    def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
+        """Deterministic policy, one full episode in each of ``eval_envs`` environments; raises
+        :class:`StopRequested` when ``stop`` is set before it ends."""
         import tasks
         from tasks.walking import WalkingTracker, is_locomotion
 
@@ -175,6 +187,8 @@ class Trainer:
             alive = np.ones(m, dtype=bool)
             zeros = np.zeros((m, self.spec.action_dim), np.float32)
             for _ in range(self.spec.episode_length):
+                if stop is not None and stop.is_set():
+                    raise StopRequested("evaluation stopped")
                 action, _ = self.algo.act(weights, obs, zeros, True)
                 out = step(np.asarray(action, np.float32))
                 ret += np.where(alive, out.reward, 0.0)
@@ -197,8 +211,9 @@ class Trainer:
         from unilab_jax.checkpoint import Checkpointer
         from unilab_jax.runtime.pool import WorkerPool
 
-        run, cfg, t_start = self.run, self.config, self.t0
+        run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
         evaluator = _AsyncEvaluator(self)
+        learner = LearnerThread(run.platform)
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
         replay = self.algo.BUFFER == "replay"
@@ -212,8 +227,7 @@ class Trainer:
                           if replay else 0,
                           max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
         ckpt = Checkpointer(self.ckpt_dir)
-        prev_handler = signal.signal(signal.SIGTERM, self._on_sigterm) \
-            if threading.current_thread() is threading.main_thread() else None
+        restore_signals = stop_on_signals(stop)
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
         next_ckpt = counters["env_steps"] + run.checkpoint_every if run.checkpoint_every else None
         last_eval: dict[str, float] = {}
@@ -223,25 +237,24 @@ class Trainer:
         source: _ReplaySource | _TrajectorySource | None = None
         progress = ProgressBar(run.total_steps, counters["env_steps"])
         try:
-            pool.start()
+            pool.start(stop=stop.is_set)
             pool.publish(weights, counters["version"])
             source = (_ReplaySource(pool, self.xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
                                     self._resumed_meta.get("replay"), self._device_replay(pool))
                       if replay else _TrajectorySource(pool, self.xp, self.spec.reward_terms))
             prefetch = _Prefetcher(source.produce, inline=run.serial)
             t_last, steps_last = time.time(), counters["env_steps"]
-            while counters["env_steps"] < run.total_steps and not self._stop.is_set():
+            while counters["env_steps"] < run.total_steps and not stop.is_set():
                 t_wait = time.perf_counter()
-                batch, stats = prefetch.get()
+                batch, stats = prefetch.get(stop)
                 t_update = time.perf_counter()
-                state, metrics = self.learner.update(state, batch)
-                scalars = {f"loss/{k}": float(v) for k, v in metrics.items()}  # waits for the update
+                state, scalars = learner.call(stop, self._update, state, batch)
                 t_publish = time.perf_counter()
                 counters["updates"] += 1
                 publish = source.advance(counters, stats)
                 if publish:
                     counters["version"] += 1
-                    pool.publish(nets.to_numpy(self.learner.weights(state)), counters["version"])
+                    pool.publish(learner.call(stop, self._numpy_weights, state), counters["version"])
                 now = time.time()
                 scalars.update({"perf/learner_wait_s": t_update - t_wait, "perf/update_s": t_publish - t_update,
                                 "perf/publish_s": time.perf_counter() - t_publish})
@@ -254,14 +267,15 @@ class Trainer:
                 self.logger.log(counters["env_steps"], scalars)
                 progress.update(counters["env_steps"], scalars.get("episode/return"))
                 if next_eval is not None and counters["env_steps"] >= next_eval:
-                    evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
+                    evaluator.submit(learner.call(stop, self._numpy_weights, state), dict(counters),
+                                     time.time() - t_start)
                     evaluated_at = counters["env_steps"]
                     next_eval += run.eval_every
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                 if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                     next_ckpt += run.checkpoint_every
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, StopRequested):
             interrupted = True
         finally:
             progress.close()
@@ -276,9 +290,9 @@ class Trainer:
             ckpt.close()
             if store is not None:
                 store.close()
-            if prev_handler is not None:
-                signal.signal(signal.SIGTERM, prev_handler)
-        interrupted = interrupted or self._stop.is_set()
+            learner.close()
+            restore_signals()
+        interrupted = interrupted or stop.is_set()
         if not interrupted and evaluated_at != counters["env_steps"]:
             evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
         last_eval = evaluator.close(cancel=interrupted)
@@ -290,8 +304,108 @@ class Trainer:
             json.dump(summary, f, indent=2)
         return summary
 
-    def _on_sigterm(self, signum: int, frame: Any) -> None:
-        self._stop.set()
+    def _update(self, state: Any, batch: dict) -> tuple[Any, dict[str, float]]:
+        """One learner update and its losses as floats (which waits for the update to finish)."""
+        state, metrics = self.learner.update(state, batch)
+        return state, {f"loss/{k}": float(v) for k, v in metrics.items()}
+
+    def _numpy_weights(self, state: Any) -> dict:
+        return nets.to_numpy(self.learner.weights(state))
+
+
+def stop_on_signals(stop: threading.Event) -> Callable[[], None]:
+    """SIGINT and SIGTERM set ``stop`` (the loop and every wait of the main thread check it); a second
+    SIGINT raises ``KeyboardInterrupt`` at once. Returns the function that puts the old handlers back.
+    Only the main thread can own signal handlers: elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def handler(signum: int, frame: Any) -> None:
+        if signum == signal.SIGINT and stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    return lambda: [signal.signal(sig, h) for sig, h in old.items()]
+
+
+_LEARNER_THREADS: weakref.WeakSet = weakref.WeakSet()
+
+
+def learner_busy() -> bool:
+    """Whether a stopped run left a learner call running (a compile or an update it did not wait for)."""
+    return any(t.busy for t in _LEARNER_THREADS)
+
+
+class LearnerThread:
+    """Runs the learner's calls in one dedicated daemon thread, in order, so that the main thread stays
+    free to notice a stop during a long first compile or a slow update.
+
+    ``call(stop, fn, *args)`` returns ``fn(*args)`` or raises :class:`StopRequested` once ``stop`` is set,
+    without waiting for ``fn``: the call goes on in the background (``busy``) and its result is dropped.
+    The caller keeps its last completed state, which is valid because the learners' updates do not
+    donate their input buffers. ``submit`` queues a call and returns its ``Future`` at once. MLX keeps
+    a default stream per thread, so the thread makes its own.
+    """
+
+    _POLL_S = 0.05
+
+    def __init__(self, platform: str, name: str = "learner"):
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._pending = 0
+        self._thread = threading.Thread(target=self._loop, args=(platform,), name=name, daemon=True)
+        self._thread.start()
+        _LEARNER_THREADS.add(self)
+
+    @property
+    def busy(self) -> bool:
+        with self._lock:
+            return self._pending > 0
+
+    def _loop(self, platform: str) -> None:
+        if platform == "mlx":
+            import mlx.core as mx
+
+            mx.set_default_stream(mx.new_stream(mx.default_device()))
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            fn, args, future = job
+            try:
+                future.set_result(fn(*args))
+            except BaseException as e:  # handed to whoever waits on the future
+                future.set_exception(e)
+            with self._lock:
+                self._pending -= 1
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
+        future: Future = Future()
+        with self._lock:
+            self._pending += 1
+        self._jobs.put((fn, args, future))
+        return future
+
+    def call(self, stop: threading.Event, fn: Callable[..., Any], *args: Any) -> Any:
+        if stop.is_set():
+            raise StopRequested("stop requested before a learner call")
+        return wait_result(self.submit(fn, *args), stop)
+
+    def close(self) -> None:
+        """Ends the thread after the calls queued so far (without waiting for them)."""
+        self._jobs.put(None)
+
+
+def wait_result(future: Future, stop: threading.Event) -> Any:
+    """``future.result()``, or :class:`StopRequested` as soon as ``stop`` is set (the call is not waited for)."""
+    while True:
+        try:
+            return future.result(timeout=LearnerThread._POLL_S)
+        except FutureTimeout:
+            if stop.is_set():
+                raise StopRequested("stop requested during a learner call (left running in the background)") \
+                    from None
 
 
 class _AsyncEvaluator:
@@ -323,17 +437,17 @@ class _AsyncEvaluator:
 
     def _run(self, weights: dict, counters: dict[str, int], wall_s: float) -> dict[str, float]:
         tr = self._trainer
-        result = tr.evaluate(weights, seed=counters["updates"])
+        result = tr.evaluate(weights, seed=counters["updates"], stop=tr._stop)
         result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0,
                        "eval/skipped": float(self.skipped)})
         tr.logger.log(counters["env_steps"], result)
         return result
 
     def close(self, cancel: bool = False) -> dict[str, float]:
-        """Waits for the running evaluation (and the waiting one unless ``cancel``); returns the
-        newest finished result ({} if none finished)."""
+        """Waits for the running evaluation (and the waiting one unless ``cancel``; a stopped run's
+        evaluation ends at its next step); returns the newest finished result ({} if none finished)."""
         self._pool.shutdown(wait=True, cancel_futures=cancel)
-        done = [f for f in self._futures if not f.cancelled()]
+        done = [f for f in self._futures if not f.cancelled() and not isinstance(f.exception(), StopRequested)]
         return done[-1].result() if done else {}
 
 
@@ -370,7 +484,8 @@ class _Prefetcher:
             if not self._stop.is_set():
                 self._queue.put(e)
 
-    def get(self) -> tuple[dict, dict]:
+    def get(self, stop: threading.Event | None = None) -> tuple[dict, dict]:
+        """The next item; raises :class:`StopRequested` when ``stop`` is set while waiting for it."""
         if self._thread is None:
             item = self._produce(self._stop)
             if item is None:
@@ -378,8 +493,10 @@ class _Prefetcher:
             return item
         while True:
             try:
-                item = self._queue.get(timeout=0.5)
+                item = self._queue.get(timeout=0.1)
             except queue.Empty:
+                if stop is not None and stop.is_set():
+                    raise StopRequested("stop requested while waiting for a batch") from None
                 if not self._thread.is_alive():
                     raise RuntimeError("prefetch thread stopped") from None
                 continue
@@ -462,6 +579,7 @@ class _ReplaySource:
     """
 
     _TICK_S = 0.25  # seconds between no-op items while the ring warms up
+    _STOP_WAIT_S = 5.0  # how long stop() waits for a sample in flight
     _RNG_TAG = 0x5A4D  # keeps the sampling stream apart from other streams derived from the run seed
 
     def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int, store: Any = None,
@@ -590,13 +708,20 @@ class _ReplaySource:
 
     def stop(self) -> None:
         """Final commit to the store, then no more access to the rings (the pool closes next). A
-        failing commit is logged, not raised: the checkpoint that follows matters more."""
-        with self._lock:
-            try:
-                self._persist()
-            except Exception:  # a full disk, say: still close the pool and write the checkpoint
-                log.exception("replay store: the final commit failed; the last chunk is lost")
+        failing commit is logged, not raised: the checkpoint that follows matters more. Waits at most
+        ``_STOP_WAIT_S`` for a sample in flight (a first device-mirror call compiles), then gives up."""
+        if not self._lock.acquire(timeout=self._STOP_WAIT_S):
+            log.warning("replay: a sample was still running after %.0f s; stopping without the final commit",
+                        self._STOP_WAIT_S)
             self._stopped = True
+            return
+        try:
+            self._persist()
+        except Exception:  # a full disk, say: still close the pool and write the checkpoint
+            log.exception("replay store: the final commit failed; the last chunk is lost")
+        finally:
+            self._stopped = True
+            self._lock.release()
 
     def pool_scalars(self) -> dict[str, float]:
         st = self._pool.stats()

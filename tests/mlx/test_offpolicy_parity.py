@@ -118,7 +118,7 @@ def test_one_update_matches_jax(name):
 
     js, _ = jl.update(js, {k: jnp.asarray(v) for k, v in _batch(1).items()})  # warm-up
     noise = _jax_noise(js.key, name == "td3")
-    ms = mlx_off.state_from_numpy(jax.device_get(js), like)  # before the JAX update donates js
+    ms = mlx_off.state_from_numpy(jax.device_get(js), like)
     batch = _batch(2)
 
     js2, jm = jl.update(js, {k: jnp.asarray(v) for k, v in batch.items()})

@@ -96,7 +96,7 @@ def _setup(use_vtrace: bool, config: ppo.PPOConfig):
     keys = jax.random.split(js.key, config.num_epochs + 1)
     perms = np.stack([np.asarray(jax.random.permutation(k, T * B)) for k in keys[1:]])
     like = ml.init(mx.random.key(0))
-    ms = mlx_ppo.state_from_numpy(js, like)  # before the JAX update: it donates its input state
+    ms = mlx_ppo.state_from_numpy(js, like)
     return jl, ml, js, ms, like, batch, perms
 
 

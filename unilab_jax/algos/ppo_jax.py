@@ -51,7 +51,7 @@ class Learner:
     def __init__(self, config: ppo.PPOConfig, spec: TaskSpec, use_vtrace: bool = False):
         self.config, self.spec, self.use_vtrace = config, spec, use_vtrace
         self.tx = make_optimizer(config)
-        self.update = jax.jit(self._update, donate_argnums=0)
+        self.update = jax.jit(self._update)  # no donation: a stopped run saves the last completed state
 
     def init_params(self, key: jax.Array) -> dict:
         return ppo.init_params(key, self.spec.obs_dim, self.spec.critic_obs_dim, self.spec.action_dim,

@@ -6,6 +6,7 @@ See ``docs/ARCHITECTURE.md`` ("Runtime") for the data flow and the memory-orderi
 
 from unilab_jax.runtime.buffers import ReplayBuffer, TrajectoryBuffer, transition_layout
 from unilab_jax.runtime.pool import WorkerDiedError, WorkerPool
+from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.runtime.shm import SharedArrays, ShmSpaceError, cleanup_stale
 from unilab_jax.runtime.weights import WeightChannel, WeightReader
 
@@ -13,6 +14,7 @@ __all__ = [
     "ReplayBuffer",
     "SharedArrays",
     "ShmSpaceError",
+    "StopRequested",
     "TrajectoryBuffer",
     "WeightChannel",
     "WeightReader",

@@ -53,13 +53,13 @@ import os
 import sys
 import time
 import weakref
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
 
 from unilab_jax.runtime.buffers import ReplayBuffer, TrajectoryBuffer, transition_layout
-from unilab_jax.runtime.ring import RingTimeout, wait_for
+from unilab_jax.runtime.ring import RingTimeout, StopRequested, wait_for
 from unilab_jax.runtime.shm import SharedArrays, cleanup_stale
 from unilab_jax.runtime.weights import WeightChannel
 from unilab_jax.runtime.worker import (
@@ -314,8 +314,9 @@ class WorkerPool:
     def segment_names(self) -> list[str]:
         return [self._ctl.name, self.weights.seg.name, *self.buffer.segment_names]
 
-    def start(self, wait: bool = True, timeout: float = 300.0) -> WorkerPool:
-        """Starts the workers; with ``wait`` returns once every worker has built its task."""
+    def start(self, wait: bool = True, timeout: float = 300.0, stop: Callable[[], bool] | None = None) -> WorkerPool:
+        """Starts the workers; with ``wait`` returns once every worker has built its task, or raises
+        :class:`StopRequested` as soon as ``stop()`` is true while waiting (a signal during start-up)."""
         if self._res.closed:
             raise RuntimeError("the pool is closed")
         if self._started:
@@ -331,8 +332,14 @@ class WorkerPool:
                 self._spawn(i)
             if wait:
                 status = self._ctl["worker"][:, STATUS]
+
+                def check() -> None:
+                    if stop is not None and stop():
+                        raise StopRequested("stop requested while the workers were starting")
+                    self._check_workers()
+
                 wait_for(lambda: True if (status != 0).all() else None, timeout=timeout,
-                         check=self._check_workers, poll=self.poll, what="workers to start")
+                         check=check, poll=self.poll, what="workers to start")
                 self._check_workers()
         self._t_start = time.monotonic()
         return self

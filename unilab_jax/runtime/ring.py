@@ -63,7 +63,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["SpscRing", "RingTimeout", "checksum", "fence", "mix64", "ring_words"]
+__all__ = ["SpscRing", "RingTimeout", "StopRequested", "checksum", "fence", "mix64", "ring_words"]
 
 _SEQ_MASK = 0x7FFFFFFF
 _VAL_MASK = 0xFFFFFFFF
@@ -103,6 +103,10 @@ def checksum(data: np.ndarray, seq: int = 0) -> int:
 
 class RingTimeout(TimeoutError):
     """A ring wait ran past its deadline."""
+
+
+class StopRequested(Exception):
+    """A wait was given up because its owner asked to stop (a signal, say)."""
 
 
 def ring_words(capacity: int) -> int:
