@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import atexit
 import os
 import pathlib
+import shutil
+import tempfile
 
 import pytest
 
@@ -11,6 +14,15 @@ import pytest
 _ROBOTS = pathlib.Path(__file__).resolve().parents[2] / "shared" / "robots"
 if _ROBOTS.is_dir():
     os.environ.setdefault("MENAGERIE_ROOT", str(_ROBOTS))
+
+# Many tests (and the experiment scripts they start as subprocesses) compile the same learner updates:
+# they share compiled XLA programs through JAX's persistent cache, in a directory made for this session
+# (inherited by pytest-xdist workers and subprocesses) and removed at its end. Set before jax is imported.
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    _JAX_CACHE = tempfile.mkdtemp(prefix="unilab_test_xla_")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _JAX_CACHE
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    atexit.register(shutil.rmtree, _JAX_CACHE, True)
 
 _SHM = "/dev/shm"
 _PREFIX = "unilab_"

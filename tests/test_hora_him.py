@@ -26,10 +26,10 @@ DR_TASK = {"dr_motor_strength": (0.3, 1.5), "dr_pole_mass_scale": (0.5, 2.0), "h
 HISTORY = 30
 
 
-def _train(tmp_path, algo, name, overrides, recipe, steps, envs_per_worker=16):
+def _train(tmp_path, algo, name, overrides, recipe, steps, envs_per_worker=16, seed=0):
     module = algos.get(algo)
     run = RunConfig(algo=algo, task="cartpole_balance_hist", num_workers=2, envs_per_worker=envs_per_worker,
-                    total_steps=steps, seed=0, logdir=str(tmp_path / name), eval_envs=8)
+                    total_steps=steps, seed=seed, logdir=str(tmp_path / name), eval_envs=8)
     summary = Trainer(run, module, apply_overrides(module.Config(), recipe), overrides).train()
     with open(os.path.join(summary["logdir"], "metrics.jsonl")) as f:
         rows = [json.loads(line) for line in f]
@@ -37,9 +37,11 @@ def _train(tmp_path, algo, name, overrides, recipe, steps, envs_per_worker=16):
 
 
 def test_hora_student_recovers_the_latent_and_the_teachers_return(tmp_path):
-    # Stage 1: the teacher reads the extrinsics through z = tanh(mlp(e)).
+    # Stage 1: the teacher reads the extrinsics through z = tanh(mlp(e)). Its final return over seeds 0-7
+    # (dev VM): 183-199 at this budget (167-196 at half of it); threshold 150. The whole test passed on
+    # seeds 0-5 (students 169-199).
     teacher, _ = _train(tmp_path, "hora_teacher", "teacher", {**DR_TASK, "history_len": 1},
-                        {**PPO_CARTPOLE, "encoder_hidden": (32,), "z_dim": 2}, 24_576)
+                        {**PPO_CARTPOLE, "encoder_hidden": (32,), "z_dim": 2}, 49_152)
     assert teacher["eval/return"] >= 150.0, teacher
     # Stage 2: 256 envs (each its own dynamics) drive with the frozen teacher head on z_hat from 30 frames.
     ckpts = os.path.join(teacher["logdir"], "checkpoints")
@@ -87,8 +89,10 @@ def test_him_ppo_learns_cartpole_from_positions_only(tmp_path):
     # The frames drop both velocities (observation columns 3, 4); the estimator regresses them from the
     # successor's critic observation (the same columns there) and the policy gets the estimates.
     overrides = {"history_len": 4, "history_extrinsics": False, "history_exclude": (3, 4), "history_actions": True}
-    summary, rows = _train(tmp_path, "him_ppo", "him", overrides, {**PPO_CARTPOLE, "velocity_cols": (3, 4)}, 24_576)
-    assert summary["eval/return"] >= 150.0, summary  # a random policy: ~35
+    # Final return over seeds 0-7 (dev VM): 172-197 at this budget; at half of it 152-198 (a fresh machine
+    # got 137 there). Threshold 130: 42 below the lowest seed, ~4x a random policy (~35).
+    summary, rows = _train(tmp_path, "him_ppo", "him", overrides, {**PPO_CARTPOLE, "velocity_cols": (3, 4)}, 49_152)
+    assert summary["eval/return"] >= 130.0, summary
     train = [r for r in rows if "loss/velocity_loss" in r]
     vel = np.array([r["loss/velocity_loss"] for r in train])
     swap = np.array([r["loss/swap_loss"] for r in train])

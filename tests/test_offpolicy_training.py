@@ -67,8 +67,9 @@ def _check_replay_loop(config, summary, rows, total_steps):
 # 450k. TD3 is noisier (its failures: the cart drifting off the rail), 8 runs over seeds 0-4: the best
 # evaluation passes 150 by 550k in 7 (the 8th peaked at 119 by 600k; the same seed rerun passed 150 at
 # 550k and 180 at 660k), the return at 600k ranged 115-200; seed 0 (used here) was >= 155 from 220k
-# on in all 3 of its runs and ended at 195-200. Thresholds: SAC's final return at 450k >= 150 (~45
-# margin); TD3's best evaluation >= 150 and its final one >= 100.
+# on in all 3 of its runs and ended at 195-200. Seeds 1-6 again (later session): best 144-199, final
+# 127-199. Thresholds: SAC's final return at 450k >= 150 (~45 margin); TD3's best evaluation >= 100
+# (lowest seen 119) and its final one >= 80 (lowest seen 115).
 # Test runtime: ~20 s (SAC) and ~25 s (TD3) on an idle VM, 35-40 s with other jobs on the 2 cores.
 @pytest.mark.parametrize("algo,script,steps", [("sac", "sac_cartpole.py", 450_000),
                                                ("td3", "td3_cartpole.py", 600_000)])
@@ -80,7 +81,7 @@ def test_sac_td3_learn_cartpole(tmp_path, algo, script, steps):
     if algo == "sac":
         assert summary["eval/return"] >= 150.0, summary
     else:
-        assert max(evals) >= 150.0 and summary["eval/return"] >= 100.0, (evals, summary)
+        assert max(evals) >= 100.0 and summary["eval/return"] >= 80.0, (evals, summary)
 
 
 # Measured at 500k env steps (~2k gradient steps), seeds 0 (this test), 1, 2: FastSAC 191, 178, 190;

@@ -21,11 +21,15 @@ def _train(tmp_path, algo, platform, total_steps, seed=0):
     return Trainer(run, module, config, {}).train()
 
 
-# A random policy balances for ~40 steps (return ~35 of a possible 200).
+# A random policy balances for ~40 steps (return ~35 of a possible 200). Thresholds hold over the seed
+# spread, which stands in for another machine's rounding (the same seed lands anywhere in it there).
+# Final evaluation (8 envs) measured on the 2-core dev VM, seeds 0-5: PPO/JAX 133-198 (one seed ~130 at
+# twice the budget too), PPO/MLX 128-199, APPO 191-200. Thresholds: 100 for PPO (>= 28 below the lowest
+# seed, ~3x random), 120 for APPO.
 @pytest.mark.parametrize("algo,platform,steps,threshold", [
-    ("ppo", "jax", 24_576, 150.0),
+    ("ppo", "jax", 24_576, 100.0),
     ("appo", "jax", 40_960, 120.0),
-    ("ppo", "mlx", 24_576, 150.0),
+    ("ppo", "mlx", 24_576, 100.0),
 ])
 def test_cartpole_learns(tmp_path, algo, platform, steps, threshold):
     summary = _train(tmp_path, algo, platform, steps)
