@@ -16,7 +16,7 @@ class _SlowTrainer:
         self.logged: list[tuple[int, dict]] = []
         self.logger = self
 
-    def evaluate(self, weights, seed):
+    def evaluate(self, weights, seed, stop=None):
         self.release.wait(timeout=10)
         self.evaluated.append(weights["step"])
         return {"eval/return": float(weights["step"])}

@@ -122,3 +122,17 @@ def test_the_cli_stops_within_seconds_in_any_phase(tmp_path, sig, after_s):
     assert not [n for n in list_segments() if n.startswith(f"unilab_{proc.pid}_")], out[-2000:]
     if rc == 0:
         assert '"interrupted": true' in out, out[-2000:]
+
+
+def test_a_stop_ends_an_evaluation_at_its_next_step(tmp_path):
+    from unilab_jax.runtime import StopRequested
+
+    module = algos.get("ppo")
+    run = RunConfig(algo="ppo", task="cartpole_balance", logdir=str(tmp_path), eval_envs=2)
+    trainer = Trainer(run, module, apply_overrides(module.Config(), TINY_PPO), {})
+    weights = trainer._numpy_weights(trainer.learner.init(trainer.xp.random.key(0)))
+    assert trainer.evaluate(weights, seed=0)["eval/episode_length"] > 0
+    stop = threading.Event()
+    stop.set()
+    with pytest.raises(StopRequested):
+        trainer.evaluate(weights, seed=0, stop=stop)

@@ -212,7 +212,7 @@ class Trainer:
         from unilab_jax.runtime.pool import WorkerPool
 
         run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
-        evaluator = _AsyncEvaluator(self)
+        evaluator = _AsyncEvaluator(self, stop)
         learner = LearnerThread(run.platform)
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
@@ -419,10 +419,11 @@ class _AsyncEvaluator:
     run) drops the waiting one.
     """
 
-    def __init__(self, trainer: Trainer):
+    def __init__(self, trainer: Trainer, stop: threading.Event | None = None):
+        """``stop``: when set, the running evaluation ends at its next env step (its result is dropped)."""
         from concurrent.futures import ThreadPoolExecutor
 
-        self._trainer = trainer
+        self._trainer, self._stop = trainer, stop
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eval")
         self._futures: list[Any] = []
         self.skipped = 0
@@ -437,7 +438,7 @@ class _AsyncEvaluator:
 
     def _run(self, weights: dict, counters: dict[str, int], wall_s: float) -> dict[str, float]:
         tr = self._trainer
-        result = tr.evaluate(weights, seed=counters["updates"], stop=tr._stop)
+        result = tr.evaluate(weights, seed=counters["updates"], stop=self._stop)
         result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0,
                        "eval/skipped": float(self.skipped)})
         tr.logger.log(counters["env_steps"], result)
