@@ -7,9 +7,12 @@ policy lag (learner version minus the version that produced each transition) is 
 
 Stopping: SIGINT and SIGTERM set a stop flag that every wait of the main thread checks. The learner's
 own calls (the update, whose first call compiles, and the weight download) run in a dedicated thread
-(:class:`LearnerThread`), so a stop never waits for them: a call in flight is abandoned, the state
+(:class:`LearnerThread`), so a stop never waits long for them: an update in flight gets
+``_STOP_GRACE_S`` to finish (a steady GPU update takes milliseconds), then it is abandoned, the state
 saved is the one of the last completed update, and the process leaves the abandoned call behind
-(``learner_busy()``; the CLI then exits without waiting for it).
+(``learner_busy()``; the CLI then exits without waiting for it). Updates donate their input only on
+accelerators, where the one call that can outlast the grace is the first compile, before any
+donation; on the CPU, where an update can take minutes, nothing is donated.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from unilab_jax import nets
 from unilab_jax.algos import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
+from unilab_jax.xp import tree_leaves
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +77,13 @@ def _learner_platform(platform: str) -> Any:
     return shim.get(platform)
 
 
+def _donated(tree: Any) -> bool:
+    """Whether any leaf is a JAX array whose buffer was donated to a computation."""
+    return any(getattr(leaf, "is_deleted", lambda: False)() for leaf in tree_leaves(tree))
+
+
 class Trainer:
+    _STOP_GRACE_S = 2.0  # after a stop, how long the loop still waits for the update in flight
     def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
                  start_time: float | None = None):
         """``start_time``: wall clock that ``time/wall_s`` and ``eval/wall_s`` count from (the process
@@ -248,7 +258,7 @@ class Trainer:
                 t_wait = time.perf_counter()
                 batch, stats = prefetch.get(stop)
                 t_update = time.perf_counter()
-                state, scalars = learner.call(stop, self._update, state, batch)
+                state, scalars = learner.call(stop, self._update, state, batch, grace_s=self._STOP_GRACE_S)
                 t_publish = time.perf_counter()
                 counters["updates"] += 1
                 publish = source.advance(counters, stats)
@@ -286,7 +296,7 @@ class Trainer:
             pool.close()
             if prefetch is not None:
                 prefetch.join()
-            ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+            self._final_save(ckpt, counters, state, source)
             ckpt.close()
             if store is not None:
                 store.close()
@@ -303,6 +313,20 @@ class Trainer:
         with open(os.path.join(run.logdir, "summary.json"), "w") as f:
             json.dump(summary, f, indent=2)
         return summary
+
+    def _final_save(self, ckpt: Any, counters: dict[str, int], state: Any, source: Any) -> None:
+        """The end-of-run checkpoint. On an accelerator the update donates its input, so when a stop left
+        an update running (a first compile that outlasted ``_STOP_GRACE_S``) the state's buffers may now be
+        the update's: then the last checkpoint written stands, and a warning says which."""
+        try:
+            if not _donated(state):
+                ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+                return
+        except Exception:
+            if not _donated(state):
+                raise
+        log.warning("final checkpoint skipped: the update left running took the state's buffers; the last "
+                    "checkpoint (env step %s) stands", ckpt.latest_step())
 
     def _update(self, state: Any, batch: dict) -> tuple[Any, dict[str, float]]:
         """One learner update and its losses as floats (which waits for the update to finish)."""
@@ -343,9 +367,9 @@ class LearnerThread:
 
     ``call(stop, fn, *args)`` returns ``fn(*args)`` or raises :class:`StopRequested` once ``stop`` is set,
     without waiting for ``fn``: the call goes on in the background (``busy``) and its result is dropped.
-    The caller keeps its last completed state, which is valid because the learners' updates do not
-    donate their input buffers. ``submit`` queues a call and returns its ``Future`` at once. MLX keeps
-    a default stream per thread, so the thread makes its own.
+    The caller keeps its last completed state (valid unless the call donated it: see ``Trainer``).
+    ``submit`` queues a call and returns its ``Future`` at once. MLX keeps a default stream per thread,
+    so the thread makes its own.
     """
 
     _POLL_S = 0.05
@@ -387,25 +411,30 @@ class LearnerThread:
         self._jobs.put((fn, args, future))
         return future
 
-    def call(self, stop: threading.Event, fn: Callable[..., Any], *args: Any) -> Any:
+    def call(self, stop: threading.Event, fn: Callable[..., Any], *args: Any, grace_s: float = 0.0) -> Any:
+        """``fn(*args)`` in the thread; after a stop, waits ``grace_s`` more for it to finish."""
         if stop.is_set():
             raise StopRequested("stop requested before a learner call")
-        return wait_result(self.submit(fn, *args), stop)
+        return wait_result(self.submit(fn, *args), stop, grace_s)
 
     def close(self) -> None:
         """Ends the thread after the calls queued so far (without waiting for them)."""
         self._jobs.put(None)
 
 
-def wait_result(future: Future, stop: threading.Event) -> Any:
-    """``future.result()``, or :class:`StopRequested` as soon as ``stop`` is set (the call is not waited for)."""
+def wait_result(future: Future, stop: threading.Event, grace_s: float = 0.0) -> Any:
+    """``future.result()``, or :class:`StopRequested` once ``stop`` is set and ``grace_s`` more seconds have
+    passed without a result (the call is then not waited for)."""
     while True:
         try:
             return future.result(timeout=LearnerThread._POLL_S)
         except FutureTimeout:
             if stop.is_set():
-                raise StopRequested("stop requested during a learner call (left running in the background)") \
-                    from None
+                break
+    try:
+        return future.result(timeout=grace_s)
+    except FutureTimeout:
+        raise StopRequested("stop requested during a learner call (left running in the background)") from None
 
 
 class _AsyncEvaluator:

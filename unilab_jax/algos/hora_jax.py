@@ -89,7 +89,7 @@ class StudentLearner:
     def __init__(self, config: HoraStudentConfig, spec: Any):
         self.config, self.spec = config, spec
         self.tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.learning_rate))
-        self.update = jax.jit(self._update)  # no donation: a stopped run saves the last completed state
+        self.update = jax.jit(self._update, donate_argnums=ppo_jax.DONATE_STATE)
 
     def init(self, key: jax.Array) -> StudentState:
         cfg, s = self.config, self.spec
@@ -104,7 +104,7 @@ class StudentLearner:
                              teacher={k: teacher[k] for k in ("actor", "log_std", "encoder")},
                              history_norm=hora.history_stats(obs_norm, d, p, s.history_len), ext_norm=ext_norm,
                              key=k_state, updates=jnp.zeros((), jnp.int32), z_mse0=jnp.zeros((), jnp.float32))
-        return state
+        return jax.tree_util.tree_map(jnp.array, state)  # own buffers: the update may donate every leaf
 
     def weights(self, state: StudentState) -> dict:
         return {"actor": state.teacher["actor"], "log_std": state.teacher["log_std"], "adapt": state.params["adapt"],

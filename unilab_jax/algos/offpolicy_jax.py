@@ -4,8 +4,8 @@
 ``batch`` is a dict of arrays shaped ``[U, B, ...]`` (U = ``config.updates_per_call``, B =
 ``config.batch_size``) with fields ``BATCH_FIELDS``; other fields are ignored. ``update`` is ONE
 ``jax.jit`` that scans U gradient steps; an empty batch ``{}`` returns the state unchanged and no
-metrics (the trainer's replay source sends one while the ring warms up). The input state is not
-donated: a stopped run saves the state it had before the update in flight.
+metrics (the trainer's replay source sends one while the ring warms up). The input state is donated on
+accelerators (``DONATE_STATE``).
 Normalizer statistics move once per call, from the first of the U minibatches, before the gradient
 steps.
 
@@ -38,6 +38,8 @@ from unilab_jax.algos.td3 import TD3State
 from unilab_jax.core import normalizer, polyak
 
 XP = shim.get("jax")
+# Donated input state on accelerators only (why, and what it gains: unilab_jax/algos/ppo_jax.py).
+DONATE_STATE = 0 if jax.default_backend() != "cpu" else ()
 NP = shim.get("numpy")
 
 
@@ -105,7 +107,7 @@ class SACFamilyLearner:
         self._project = getattr(algo, "project_params", None)
         self._reward_scale = getattr(algo, "reward_scale", None)
         self.trace_count = 0  # times ``update`` was traced (tests assert no retracing)
-        self._update_jit = jax.jit(self._update, compiler_options=compiler_options)
+        self._update_jit = jax.jit(self._update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
         self._init_state = jax.jit(self._init_state_fn, compiler_options=compiler_options)
 
     def update(self, state: SACState, batch: dict) -> tuple[SACState, dict]:
@@ -197,7 +199,7 @@ class TD3Learner:
         self.actor_tx = make_optimizer(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_tx = make_optimizer(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
         self.trace_count = 0
-        self._update_jit = jax.jit(self._update, compiler_options=compiler_options)
+        self._update_jit = jax.jit(self._update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
         self._init_state = jax.jit(self._init_state_fn, compiler_options=compiler_options)
 
     def update(self, state: TD3State, batch: dict) -> tuple[TD3State, dict]:

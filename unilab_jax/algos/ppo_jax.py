@@ -16,6 +16,10 @@ from unilab_jax.core import normalizer
 from unilab_jax.core import ppo as ppo_core
 
 XP = shim.get("jax")
+# The update donates its input state on accelerators (measured on the H100: FastSAC 28.5 -> 27.4 ms per
+# call, FlashSAC 13.8 -> 12.8) but not on the CPU, where an update can take minutes and a stopped run
+# must still save the state it had before the update in flight (unilab_jax/trainer.py, LearnerThread).
+DONATE_STATE = 0 if jax.default_backend() != "cpu" else ()
 def make_optimizer(config: ppo.PPOConfig) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
                        optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate))
@@ -51,7 +55,7 @@ class Learner:
     def __init__(self, config: ppo.PPOConfig, spec: TaskSpec, use_vtrace: bool = False):
         self.config, self.spec, self.use_vtrace = config, spec, use_vtrace
         self.tx = make_optimizer(config)
-        self.update = jax.jit(self._update)  # no donation: a stopped run saves the last completed state
+        self.update = jax.jit(self._update, donate_argnums=DONATE_STATE)
 
     def init_params(self, key: jax.Array) -> dict:
         return ppo.init_params(key, self.spec.obs_dim, self.spec.critic_obs_dim, self.spec.action_dim,
