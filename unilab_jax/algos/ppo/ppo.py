@@ -1,7 +1,7 @@
 """PPO: lock-step, on trajectory slots.
 
-The worker side (``act``) and the loss are written against the shim; the JAX learner lives in
-``unilab_jax.algos.jax_learner`` and the MLX one in ``unilab_mlx``. Published weights are
+The worker side (``act``) and the loss are written against the shim; the learners beside this file
+(``learner_jax``, ``learner_mlx``) run them, found through the registry (``unilab_jax.algos``). Published weights are
 ``{"actor": mlp, "log_std": [A], "obs_norm": RunningStats}``.
 """
 
@@ -14,9 +14,11 @@ from typing import Any, NamedTuple
 from unilab_jax import nets
 from unilab_jax import xp as shim
 from unilab_jax.core import distributions, gae, normalizer, ppo, vtrace
+from unilab_jax.lazy import learner_maker
 
 SYNC = "lockstep"
 BUFFER = "trajectory"
+VTRACE = False  # the learners' targets: GAE (V-trace for APPO)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,6 +162,21 @@ def minibatch_source(params: dict, obs_norm: Any, critic_norm: Any, batch: dict,
     return flat, {"value_mean": xp.mean(values), "advantage_std": xp.std(adv)}
 
 
+def next_state(state: TrainState, params: dict, opt_state: Any, batch: dict, key: Any,
+               config: PPOConfig) -> TrainState:
+    """The state after an update on the [T, B] ``batch``: new parameters, optimizer state and key, one
+    more update, and (``normalize_obs``) the normalizers moved by the batch. They move after the update,
+    so its ratios used the normalization the workers acted with."""
+    xp = shim.namespace(batch["reward"])
+    n = batch["reward"].shape[0] * batch["reward"].shape[1]
+    obs_norm, critic_norm = state.obs_norm, state.critic_norm
+    if config.normalize_obs:
+        obs_norm = normalizer.stats_update(obs_norm, xp.reshape(batch["obs"], (n, -1)))
+        critic_norm = normalizer.stats_update(critic_norm, xp.reshape(batch["critic_obs"], (n, -1)))
+    return TrainState(params=params, opt_state=opt_state, obs_norm=obs_norm, critic_norm=critic_norm, key=key,
+                      updates=state.updates + 1)
+
+
 def _actor(params: dict, obs_norm: Any, obs: Any) -> tuple[Any, Any]:
     xp = shim.namespace(obs)
     mean = nets.apply(params["actor"], normalizer.normalize(obs_norm, obs))
@@ -194,16 +211,4 @@ def loss(params: dict, obs_norm: Any, critic_norm: Any, mb: dict, config: PPOCon
 
 
 Config = PPOConfig
-
-
-def make_learner(platform: str, config: PPOConfig, spec: Any):
-    """The learner for ``platform`` ('jax' or 'mlx')."""
-    if platform == "jax":
-        from unilab_jax.algos.ppo_jax import Learner
-
-        return Learner(config, spec, use_vtrace=False)
-    elif platform == "mlx":
-        from unilab_mlx.ppo import Learner
-
-        return Learner(config, spec, use_vtrace=False)
-    raise ValueError(f"PPO has no learner for platform {platform!r} yet")
+make_learner = learner_maker(__name__)

@@ -28,13 +28,12 @@ Published weights are SAC's: ``{"actor": mlp, "obs_norm": RunningStats}``.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from collections.abc import Callable
 from typing import Any
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
-from unilab_jax.algos.sac import (
+from unilab_jax.algos.offpolicy.sac import (
     Norms,
     act,
     check_config,
@@ -48,6 +47,7 @@ from unilab_jax.algos.sac import (
     temperature_loss,
 )
 from unilab_jax.core import c51, distributions
+from unilab_jax.lazy import learner_maker
 
 SYNC = "async"
 BUFFER = "replay"
@@ -91,6 +91,7 @@ class FastSACConfig:
 
 
 Config = FastSACConfig
+make_learner = learner_maker(__name__)
 
 
 def init_params(key: Any, obs_dim: int, critic_obs_dim: int, action_dim: int, config: FastSACConfig,
@@ -170,15 +171,3 @@ def actor_loss(actor: Any, critic: Any, log_alpha: Any, norms: Norms, mb: dict, 
     """``mean(alpha log pi - Q)`` with Q the C51 means (min over critics with ``use_cdq``)."""
     return soft_actor_loss(actor, critic, log_alpha, norms, mb, eps, categorical_q_fn(config),
                            use_min=config.use_cdq)
-
-
-def make_learner(platform: str, config: FastSACConfig, spec: Any):
-    if platform == "jax":
-        from unilab_jax.algos.offpolicy_jax import SACFamilyLearner
-
-        return SACFamilyLearner(sys.modules[__name__], config, spec)
-    if platform == "mlx":
-        from unilab_mlx.offpolicy import SACFamilyLearner as MlxSACFamilyLearner
-
-        return MlxSACFamilyLearner(sys.modules[__name__], config, spec)
-    raise ValueError(f"FastSAC has no learner for platform {platform!r} yet")

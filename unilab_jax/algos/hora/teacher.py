@@ -12,8 +12,9 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from unilab_jax.algos import hora
-from unilab_jax.algos.ppo import PPOConfig, extras, gaussian_act
+from unilab_jax.algos.hora import common as hora
+from unilab_jax.algos.ppo.ppo import PPOConfig, extras, gaussian_act
+from unilab_jax.lazy import learner_maker
 
 SYNC = "lockstep"
 BUFFER = "trajectory"
@@ -30,6 +31,7 @@ class HoraTeacherConfig(PPOConfig):
 
 
 Config = HoraTeacherConfig
+make_learner = learner_maker(__name__)
 
 
 def act(weights: dict[str, Any], obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
@@ -45,7 +47,3 @@ def check_run(platform: str, task_config: Any, config: Any) -> None:
 
 def check_spec(spec: Any) -> None:
     hora.check_spec("hora_teacher", spec)
-
-
-def make_learner(platform: str, config: HoraTeacherConfig, spec: Any):
-    return hora.make_learner("hora_teacher", "TeacherLearner", platform, config, spec)

@@ -28,9 +28,10 @@ from typing import Any
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
-from unilab_jax.algos import ppo
-from unilab_jax.algos.ppo import PPOConfig, extras
+from unilab_jax.algos.ppo import ppo
+from unilab_jax.algos.ppo.ppo import PPOConfig, extras
 from unilab_jax.core import him, normalizer
+from unilab_jax.lazy import learner_maker
 
 SYNC = "lockstep"
 BUFFER = "trajectory"
@@ -59,6 +60,7 @@ class HIMPPOConfig(PPOConfig):
 
 
 Config = HIMPPOConfig
+make_learner = learner_maker(__name__)
 
 
 def init_params(key: Any, spec: Any, config: HIMPPOConfig, xp: shim.Backend) -> dict[str, Any]:
@@ -141,12 +143,3 @@ def check_spec(spec: Any, config: HIMPPOConfig) -> None:
     if not config.velocity_cols or bad:
         raise ValueError(f"velocity_cols {config.velocity_cols} must be non-empty columns of the "
                          f"{spec.critic_obs_dim}-dim critic observation")
-
-
-def make_learner(platform: str, config: HIMPPOConfig, spec: Any):
-    check_spec(spec, config)
-    if platform == "jax":
-        from unilab_jax.algos.him_ppo_jax import Learner
-
-        return Learner(config, spec)
-    raise ValueError(f"him_ppo has no learner for platform {platform!r} (JAX only)")

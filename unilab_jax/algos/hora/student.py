@@ -28,7 +28,8 @@ import dataclasses
 from typing import Any
 
 from unilab_jax import xp as shim
-from unilab_jax.algos import hora
+from unilab_jax.algos.hora import common as hora
+from unilab_jax.lazy import learner_maker
 
 SYNC = "async"
 BUFFER = "trajectory"
@@ -54,6 +55,7 @@ class HoraStudentConfig:
 
 
 Config = HoraStudentConfig
+make_learner = learner_maker(__name__)
 
 
 def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
@@ -81,7 +83,3 @@ def check_run(platform: str, task_config: Any, config: HoraStudentConfig) -> Non
 
 def check_spec(spec: Any) -> None:
     hora.check_spec("hora_student", spec)
-
-
-def make_learner(platform: str, config: HoraStudentConfig, spec: Any):
-    return hora.make_learner("hora_student", "StudentLearner", platform, config, spec)

@@ -37,13 +37,20 @@ Published weights: ``{"actor": flash net, "obs_norm": RunningStats}``.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from typing import Any
 
 from unilab_jax import xp as shim
-from unilab_jax.algos.fastsac import categorical_critic_loss, categorical_q_fn, categorical_target, support
-from unilab_jax.algos.sac import Norms, check_config, extras, soft_actor_loss, tanh_gaussian_act, temperature_loss
+from unilab_jax.algos.offpolicy.fastsac import categorical_critic_loss, categorical_q_fn, categorical_target, support
+from unilab_jax.algos.offpolicy.sac import (
+    Norms,
+    check_config,
+    extras,
+    soft_actor_loss,
+    tanh_gaussian_act,
+    temperature_loss,
+)
 from unilab_jax.core import normalizer
+from unilab_jax.lazy import learner_maker
 
 SYNC = "async"
 BUFFER = "replay"
@@ -91,6 +98,7 @@ class FlashSACConfig:
 
 
 Config = FlashSACConfig
+make_learner = learner_maker(__name__)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -187,16 +195,3 @@ def actor_loss(actor: Any, critic: Any, log_alpha: Any, norms: Norms, mb: dict, 
                config: FlashSACConfig) -> tuple[Any, tuple]:
     return soft_actor_loss(actor, critic, log_alpha, norms, mb, eps, categorical_q_fn(config, flash_apply),
                            flash_apply, use_min=config.use_cdq)
-
-
-def make_learner(platform: str, config: FlashSACConfig, spec: Any):
-    if platform == "jax":
-        from unilab_jax.algos.offpolicy_jax import SACFamilyLearner
-
-        return SACFamilyLearner(sys.modules[__name__], config, spec)
-    if platform == "mlx":
-        from unilab_mlx.offpolicy import SACFamilyLearner as MlxSACFamilyLearner
-
-        return MlxSACFamilyLearner(sys.modules[__name__], config, spec)
-    raise ValueError(f"FlashSAC has no learner for platform {platform!r} yet")
-

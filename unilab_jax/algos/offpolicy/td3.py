@@ -25,9 +25,18 @@ from typing import Any, NamedTuple
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
-from unilab_jax.algos.sac import ACTIVATION, Norms, check_config, critic_input, discounts, ensemble_init, mlp_apply
+from unilab_jax.algos.offpolicy.sac import (
+    ACTIVATION,
+    Norms,
+    check_config,
+    critic_input,
+    discounts,
+    ensemble_init,
+    mlp_apply,
+)
 from unilab_jax.core import normalizer
 from unilab_jax.core import td3 as td3_core
+from unilab_jax.lazy import learner_maker
 
 SYNC = "async"
 BUFFER = "replay"
@@ -66,6 +75,7 @@ class TD3Config:
 
 
 Config = TD3Config
+make_learner = learner_maker(__name__)
 
 
 class TD3State(NamedTuple):
@@ -141,15 +151,3 @@ def actor_loss(actor: Any, critic: Any, norms: Norms, mb: dict) -> tuple[Any, di
     q = mlp_apply(critic, critic_input(norms.critic, mb["critic_obs"], action))[..., 0]
     loss = td3_core.td3_actor_loss(q[0])
     return loss, {"actor_loss": loss}
-
-
-def make_learner(platform: str, config: TD3Config, spec: Any):
-    if platform == "jax":
-        from unilab_jax.algos.offpolicy_jax import TD3Learner
-
-        return TD3Learner(config, spec)
-    if platform == "mlx":
-        from unilab_mlx.offpolicy import TD3Learner as MlxTD3Learner
-
-        return MlxTD3Learner(config, spec)
-    raise ValueError(f"TD3 has no learner for platform {platform!r} yet")

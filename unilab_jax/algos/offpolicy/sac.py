@@ -22,7 +22,7 @@ Actor" (ICML 2018, arXiv:1801.01290) and "Soft Actor-Critic Algorithms and Appli
   minibatches of every ``update`` call, so the count tracks sampled data rather than U x B.
 
 Published weights: ``{"actor": mlp, "obs_norm": RunningStats}``. The pure loss functions below are
-written against the shim (numpy / jax / mlx); the JAX learner is ``unilab_jax.algos.offpolicy_jax``.
+written against the shim (numpy / jax / mlx); the learners are ``learner_jax`` and ``learner_mlx`` beside it.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from unilab_jax import nets
 from unilab_jax import xp as shim
 from unilab_jax.core import distributions, normalizer
 from unilab_jax.core import sac as sac_core
+from unilab_jax.lazy import learner_maker
 
 SYNC = "async"
 BUFFER = "replay"
@@ -80,6 +81,7 @@ class SACConfig:
 
 
 Config = SACConfig
+make_learner = learner_maker(__name__)
 
 
 def check_config(cfg: Any) -> None:
@@ -277,20 +279,3 @@ def actor_loss(actor: Any, critic: Any, log_alpha: Any, norms: Norms, mb: dict, 
 def temperature_loss(log_alpha: Any, log_prob: Any, target_entropy: float) -> Any:
     """``-mean(alpha (log pi + target_entropy))`` (log probs gradient-stopped). log_prob: [B]."""
     return sac_core.sac_temperature_loss(log_alpha, log_prob, target_entropy)
-
-
-def make_learner(platform: str, config: SACConfig, spec: Any):
-    """The learner for ``platform`` (only 'jax' for now)."""
-    if platform == "jax":
-        import sys
-
-        from unilab_jax.algos.offpolicy_jax import SACFamilyLearner
-
-        return SACFamilyLearner(sys.modules[__name__], config, spec)
-    if platform == "mlx":
-        import sys
-
-        from unilab_mlx.offpolicy import SACFamilyLearner as MlxSACFamilyLearner
-
-        return MlxSACFamilyLearner(sys.modules[__name__], config, spec)
-    raise ValueError(f"SAC has no learner for platform {platform!r} yet")

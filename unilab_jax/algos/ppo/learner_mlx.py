@@ -1,4 +1,4 @@
-"""MLX learner for PPO and APPO, the same math as ``unilab_jax.algos.ppo_jax``.
+"""MLX learner for PPO and APPO, the same math as ``learner_jax``.
 
 ``Learner(config, spec, use_vtrace=False)`` exposes the JAX learner's interface::
 
@@ -8,7 +8,7 @@
     weights = Learner.weights(state)                   # what the workers act with
 
 The loss, targets (GAE, or V-trace for APPO), KL-adaptive learning rate and normalizer are the
-shim-written functions of ``unilab_jax.algos.ppo`` / ``unilab_jax.core`` run on mlx arrays; the
+shim-written functions of ``ppo`` / ``unilab_jax.core`` run on mlx arrays; the
 optimizer is ``unilab_mlx.optim``'s optax twin ``chain(clip_by_global_norm, inject_hyperparams(adam))``,
 so the optimizer state has the same layout (dicts and tuples instead of optax's NamedTuples) and
 :func:`state_from_numpy` moves a JAX ``TrainState`` here leaf by leaf.
@@ -47,16 +47,19 @@ import mlx.core as mx
 import numpy as np
 
 from unilab_jax import xp as shim
-from unilab_jax.algos import TRAJECTORY_FIELDS, ppo
-from unilab_jax.algos.ppo import TrainState
+from unilab_jax.algos.ppo import ppo
+from unilab_jax.algos.ppo.ppo import TrainState
 from unilab_jax.core import normalizer
 from unilab_jax.core import ppo as ppo_core
+from unilab_jax.fields import TRAJECTORY_FIELDS
 from unilab_mlx import optim
+from unilab_mlx.state import state_from_numpy, state_to_numpy
 
 if TYPE_CHECKING:
     from tasks.base import TaskSpec
 
-__all__ = ["TrainState", "Learner", "make_optimizer", "learning_rate", "state_from_numpy", "state_to_numpy"]
+__all__ = ["TrainState", "Learner", "make_optimizer", "learning_rate", "make_learner", "state_from_numpy",
+           "state_to_numpy"]
 
 XP = shim.get("mlx")
 BATCH_FIELDS = TRAJECTORY_FIELDS  # others (e.g. policy_version) are ignored
@@ -76,6 +79,11 @@ def _with_learning_rate(opt_state: Any, lr: mx.array) -> Any:
     inner = opt_state[1]
     hyper = {**inner["hyperparams"], "learning_rate": lr}
     return (opt_state[0], {**inner, "hyperparams": hyper}, *opt_state[2:])
+
+
+def make_learner(algo: Any, config: ppo.PPOConfig, spec: TaskSpec) -> Learner:
+    """The registry's factory for PPO and APPO (``algo.VTRACE``)."""
+    return Learner(config, spec, use_vtrace=algo.VTRACE)
 
 
 class Learner:
@@ -174,64 +182,6 @@ class Learner:
 
         metrics = {k: mx.mean(mx.stack([m[k] for m in step_metrics])) for k in step_metrics[0]}
         metrics.update(target_metrics)
-        obs_norm, critic_norm = state.obs_norm, state.critic_norm
-        if cfg.normalize_obs:
-            # Statistics move after the update, so the ratios above use the normalization the
-            # workers used when they acted.
-            obs_norm = normalizer.stats_update(obs_norm, batch["obs"].reshape(n, -1))
-            critic_norm = normalizer.stats_update(critic_norm, batch["critic_obs"].reshape(n, -1))
-        new_state = TrainState(params=params, opt_state=opt_state, obs_norm=obs_norm, critic_norm=critic_norm,
-                               key=keys[0], updates=state.updates + 1)
+        new_state = ppo.next_state(state, params, opt_state, batch, keys[0], cfg)
         mx.eval(new_state, metrics)
         return new_state, metrics
-
-
-# ---------------------------------------------------------------------------------------------
-# moving states between backends
-# ---------------------------------------------------------------------------------------------
-def _child(src: Any, key: Any, path: str) -> Any:
-    if isinstance(key, str):
-        if isinstance(src, Mapping):
-            if key not in src:
-                raise KeyError(f"{path}{key}: missing in the source state (has {sorted(src)})")
-            return src[key]
-        if hasattr(src, key):  # a NamedTuple (e.g. an optax state) or any object with that field
-            return getattr(src, key)
-        raise KeyError(f"{path}{key}: missing in the source state ({type(src).__name__})")
-    return src[key]
-
-
-def _fill(like: Any, src: Any, path: str = "") -> Any:
-    if isinstance(like, dict):
-        return {k: _fill(v, _child(src, k, path), f"{path}{k}/") for k, v in like.items()}
-    if isinstance(like, tuple) and hasattr(like, "_fields"):
-        return type(like)(*(_fill(v, _child(src, f, path), f"{path}{f}/")
-                            for f, v in zip(like._fields, like)))
-    if isinstance(like, list | tuple):
-        if len(src) != len(like):
-            raise ValueError(f"{path or '/'}: length {len(src)} in the source state, {len(like)} expected")
-        return type(like)(_fill(v, src[i], f"{path}{i}/") for i, v in enumerate(like))
-    a = np.asarray(src)
-    if tuple(a.shape) != tuple(like.shape):
-        raise ValueError(f"{path.rstrip('/')}: shape {a.shape} in the source state, "
-                         f"{tuple(like.shape)} expected")
-    return mx.array(a).astype(like.dtype)
-
-
-def state_from_numpy(tree: Any, like: TrainState) -> TrainState:
-    """``tree`` (a TrainState of numpy or JAX arrays, e.g. the JAX learner's) as an MLX TrainState.
-
-    ``like`` is an MLX TrainState giving structure, shapes and dtypes (``learner.init(key)``). The
-    source is read by name: dict keys and NamedTuple fields (so optax's ``InjectStatefulHyperparamsState``
-    / ``ScaleByAdamState`` / ``EmptyState`` map onto ``unilab_mlx.optim``'s dicts; extra source fields
-    such as optax's empty ``hyperparams_states`` are ignored). Leaves go through ``np.asarray``, so no
-    jax import is needed here. A missing field or a shape mismatch raises, naming the leaf.
-    """
-    out = _fill(like, tree)
-    mx.eval(out)
-    return out
-
-
-def state_to_numpy(state: Any) -> Any:
-    """Every mx array leaf of ``state`` as a numpy array (same structure)."""
-    return shim.tree_map(lambda a: np.array(a) if isinstance(a, mx.array) else a, state)

@@ -10,8 +10,8 @@ import optax
 
 from tasks.base import TaskSpec
 from unilab_jax import xp as shim
-from unilab_jax.algos import ppo
-from unilab_jax.algos.ppo import TrainState
+from unilab_jax.algos.ppo import ppo
+from unilab_jax.algos.ppo.ppo import TrainState
 from unilab_jax.core import normalizer
 from unilab_jax.core import ppo as ppo_core
 
@@ -29,6 +29,11 @@ def _with_learning_rate(opt_state: Any, lr: jax.Array) -> Any:
     inner = opt_state[1]
     hyper = {**inner.hyperparams, "learning_rate": lr}
     return (opt_state[0], inner._replace(hyperparams=hyper), *opt_state[2:])
+
+
+def make_learner(algo: Any, config: ppo.PPOConfig, spec: TaskSpec) -> Learner:
+    """The registry's factory for PPO and APPO (``algo.VTRACE``)."""
+    return Learner(config, spec, use_vtrace=algo.VTRACE)
 
 
 class Learner:
@@ -116,12 +121,4 @@ class Learner:
         keys = jax.random.split(state.key, cfg.num_epochs + 1)
         (params, opt_state), metrics = jax.lax.scan(epoch, (state.params, state.opt_state), keys[1:])
         metrics = {**jax.tree_util.tree_map(jnp.mean, metrics), **target_metrics}
-        obs_norm, critic_norm = state.obs_norm, state.critic_norm
-        if cfg.normalize_obs:
-            # Statistics move after the update, so the ratios above use the normalization the
-            # workers used when they acted.
-            obs_norm = normalizer.stats_update(obs_norm, batch["obs"].reshape(n, -1))
-            critic_norm = normalizer.stats_update(critic_norm, batch["critic_obs"].reshape(n, -1))
-        new_state = TrainState(params=params, opt_state=opt_state, obs_norm=obs_norm, critic_norm=critic_norm,
-                               key=keys[0], updates=state.updates + 1)
-        return new_state, metrics
+        return ppo.next_state(state, params, opt_state, batch, keys[0], cfg), metrics

@@ -12,14 +12,28 @@ import optax
 
 from unilab_jax import nets, nets_temporal
 from unilab_jax import xp as shim
-from unilab_jax.algos import hora, ppo, ppo_jax
-from unilab_jax.algos.hora_student import HoraStudentConfig
-from unilab_jax.algos.hora_teacher import HoraTeacherConfig
+from unilab_jax.algos.hora import common as hora
+from unilab_jax.algos.hora.student import HoraStudentConfig
+from unilab_jax.algos.hora.teacher import HoraTeacherConfig
+from unilab_jax.algos.ppo import learner_jax as ppo_jax
+from unilab_jax.algos.ppo import ppo
 from unilab_jax.core import hora as hora_core
 from unilab_jax.core import normalizer
 from unilab_jax.core.normalizer import RunningStats
 
 XP = shim.get("jax")
+
+
+def make_teacher_learner(algo: Any, config: HoraTeacherConfig, spec: Any) -> TeacherLearner:
+    """The registry's factory for ``hora_teacher`` (after its spec check)."""
+    algo.check_spec(spec)
+    return TeacherLearner(config, spec)
+
+
+def make_student_learner(algo: Any, config: HoraStudentConfig, spec: Any) -> StudentLearner:
+    """The registry's factory for ``hora_student`` (after its spec check)."""
+    algo.check_spec(spec)
+    return StudentLearner(config, spec)
 
 
 class TeacherLearner(ppo_jax.Learner):

@@ -14,7 +14,8 @@ import jax
 import optax
 
 from unilab_jax import xp as shim
-from unilab_jax.algos import him_ppo, ppo, ppo_jax
+from unilab_jax.algos.ppo import him_ppo, ppo
+from unilab_jax.algos.ppo import learner_jax as ppo_jax
 from unilab_jax.core import him
 
 XP = shim.get("jax")
@@ -22,6 +23,12 @@ XP = shim.get("jax")
 
 def _policy_part(tree: dict) -> dict:
     return {k: tree[k] for k in him_ppo.POLICY_KEYS}
+
+
+def make_learner(algo: Any, config: him_ppo.HIMPPOConfig, spec: Any) -> Learner:
+    """The registry's factory for HIM-PPO (after its spec check)."""
+    algo.check_spec(spec, config)
+    return Learner(config, spec)
 
 
 class Learner(ppo_jax.Learner):

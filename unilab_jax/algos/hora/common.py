@@ -95,7 +95,7 @@ def student_latent(adapt: dict, history_norm: RunningStats, obs: Any) -> tuple[A
 
 
 # ---------------------------------------------------------------------------------------------
-# Flag and spec checks, learner construction (both stages: JAX learners on a ``<task>_hist`` task)
+# Flag and spec checks (both stages: JAX learners on a ``<task>_hist`` task)
 # ---------------------------------------------------------------------------------------------
 PLATFORMS = ("jax",)
 
@@ -112,13 +112,3 @@ def check_run(algo: str, platform: str, task_config: Any, task_needed: str) -> N
 def check_spec(algo: str, spec: Any) -> None:
     if not getattr(spec, "extrinsics_in_obs", False):
         raise ValueError(f"{algo} needs a '<task>_hist' task with history_extrinsics=True, got {spec.name!r}")
-
-
-def make_learner(algo: str, learner: str, platform: str, config: Any, spec: Any):
-    """``hora_jax.<learner>(config, spec)`` after ``check_spec``; the stages have JAX learners only."""
-    check_spec(algo, spec)
-    if platform == "jax":
-        from unilab_jax.algos import hora_jax
-
-        return getattr(hora_jax, learner)(config, spec)
-    raise ValueError(f"{algo} has no learner for platform {platform!r} (JAX only)")

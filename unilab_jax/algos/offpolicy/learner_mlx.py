@@ -1,5 +1,5 @@
 """MLX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, TD3), the same math as
-``unilab_jax.algos.offpolicy_jax``.
+``learner_jax`` (what does not depend on the platform is ``learner_common``'s, shared with it).
 
 ``SACFamilyLearner(algo, config, spec)`` and ``TD3Learner(config, spec)`` expose the JAX learners'
 interface::
@@ -11,7 +11,7 @@ interface::
 
 The losses are the algorithm modules' shim-written functions run on mlx arrays (``critic_loss``,
 ``actor_loss``, ``temperature_loss``, optional ``project_params`` and ``reward_scale``); the
-optimizers are ``unilab_mlx.optim``'s optax twins built exactly as ``offpolicy_jax.make_optimizer``
+optimizers are ``unilab_mlx.optim``'s optax twins built by the same ``learner_common.make_optimizer``
 (``chain([clip_by_global_norm,] adam | adamw)``), so optimizer states have the same layout (dicts and
 tuples instead of optax NamedTuples) and :func:`state_from_numpy` moves a JAX state here by name.
 
@@ -40,7 +40,6 @@ optax.
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Mapping
 from types import ModuleType
 from typing import Any
@@ -48,41 +47,20 @@ from typing import Any
 import mlx.core as mx
 import numpy as np
 
-from unilab_jax import nets
 from unilab_jax import xp as shim
-from unilab_jax.algos import REPLAY_FIELDS as BATCH_FIELDS
-from unilab_jax.algos import sac, td3
-from unilab_jax.algos.sac import Norms, SACState
-from unilab_jax.algos.td3 import TD3State
-from unilab_jax.core import normalizer, polyak
+from unilab_jax.algos.offpolicy import learner_common as common
+from unilab_jax.algos.offpolicy import td3
+from unilab_jax.algos.offpolicy.sac import Norms, SACState
+from unilab_jax.algos.offpolicy.td3 import TD3State
+from unilab_jax.core import polyak
+from unilab_jax.fields import REPLAY_FIELDS as BATCH_FIELDS
 from unilab_mlx import optim
-from unilab_mlx.ppo import _fill, state_to_numpy
+from unilab_mlx.state import state_from_numpy, state_to_numpy
 
-__all__ = ["SACState", "TD3State", "SACFamilyLearner", "TD3Learner", "make_optimizer", "state_from_numpy",
+__all__ = ["SACState", "TD3State", "SACFamilyLearner", "TD3Learner", "make_td3_learner", "state_from_numpy",
            "state_to_numpy", "BATCH_FIELDS"]
 
 XP = shim.get("mlx")
-NP = shim.get("numpy")
-
-
-def make_optimizer(learning_rate: float, weight_decay: float = 0.0,
-                   max_grad_norm: float = 0.0) -> optim.GradientTransformation:
-    """Adam (AdamW when ``weight_decay`` > 0), after global-norm clipping when ``max_grad_norm`` > 0."""
-    parts = []
-    if max_grad_norm > 0:
-        parts.append(optim.clip_by_global_norm(max_grad_norm))
-    parts.append(optim.adamw(learning_rate, weight_decay=weight_decay) if weight_decay > 0
-                 else optim.adam(learning_rate))
-    return optim.chain(*parts)
-
-
-def _init_on_numpy(init_params: Any, key: Any, *args: Any, targets: tuple[str, ...] = ()) -> dict:
-    """``init_params(np_key, *args, xp=numpy)`` moved to mlx (``offpolicy_jax.init_on_numpy``'s twin:
-    the numpy key is the key's two uint32 words), plus a copy ``target_<name>`` per name in ``targets``."""
-    np_key = np.asarray(key, dtype=np.uint32).reshape(-1)[:2]
-    params = init_params(np_key, *args, xp=NP)
-    params.update({f"target_{name}": params[name] for name in targets})
-    return {k: nets.convert(v, XP) for k, v in params.items()}
 
 
 def _as_key(key: Any) -> mx.array:
@@ -91,20 +69,19 @@ def _as_key(key: Any) -> mx.array:
     return key if isinstance(key, mx.array) else mx.array(np.asarray(key, dtype=np.uint32))
 
 
-def prepare_batch(batch: Mapping[str, Any]) -> dict:
-    """The fields the update reads as mx arrays, rewards/flags as float32 (bool flags accepted)."""
-    out = {k: batch[k] if isinstance(batch[k], mx.array) else mx.array(np.asarray(batch[k])) for k in BATCH_FIELDS}
-    for k in ("reward", "terminated", "truncated"):
-        out[k] = out[k].astype(mx.float32)
-    return out
+def _prepare_batch(batch: Mapping[str, Any]) -> dict:
+    """``learner_common.prepare_batch`` of the fields as mx arrays."""
+    return common.prepare_batch({k: batch[k] if isinstance(batch[k], mx.array) else mx.array(np.asarray(batch[k]))
+                                 for k in BATCH_FIELDS})
 
 
-def update_obs_stats(obs_norm: normalizer.RunningStats, critic_norm: normalizer.RunningStats, batch: dict,
-                     enabled: bool) -> tuple[normalizer.RunningStats, normalizer.RunningStats]:
-    if not enabled:
-        return obs_norm, critic_norm
-    return (normalizer.stats_update(obs_norm, batch["obs"][0]),
-            normalizer.stats_update(critic_norm, batch["critic_obs"][0]))
+def _stack(step_metrics: list[dict]) -> dict:
+    return {k: mx.stack([m[k] for m in step_metrics]) for k in step_metrics[0]}
+
+
+def make_td3_learner(algo: ModuleType, config: td3.TD3Config, spec: Any) -> TD3Learner:
+    """The registry's factory for TD3."""
+    return TD3Learner(config, spec)
 
 
 def _noise(noise: Mapping[str, Any] | None, name: str, i: int, shape: tuple, key: mx.array) -> mx.array:
@@ -126,47 +103,18 @@ def _check_noise(noise: Mapping[str, Any] | None, names: tuple[str, ...], n: int
             raise ValueError(f"noise needs {names} with at least {n} steps each")
 
 
-def _mean_metrics(step_metrics: list[dict]) -> dict:
-    return {k: mx.mean(mx.stack([m[k] for m in step_metrics])) for k in step_metrics[0]}
-
-
-class SACFamilyLearner:
+class SACFamilyLearner(common.SACFamilyBase):
     """Learner for SAC, FastSAC and FlashSAC (``algo`` is the algorithm module)."""
 
     def __init__(self, algo: ModuleType, config: Any, spec: Any):
-        self.algo, self.config, self.spec = algo, config, spec
-        self.actor_tx = make_optimizer(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
-        self.critic_tx = make_optimizer(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
-        self.alpha_tx = optim.adam(config.alpha_learning_rate)
-        self.target_entropy = float(config.target_entropy_per_dim * spec.action_dim)
-        self._project = getattr(algo, "project_params", None)
-        self._reward_scale = getattr(algo, "reward_scale", None)
-        self.trace_count = 0  # traces of the compiled gradient step
+        super().__init__(algo, config, spec, optim, XP)
         self._step = mx.compile(self._step_fn)
 
     def init(self, key: Any) -> SACState:
-        s, key = self.spec, _as_key(key)
-        params = _init_on_numpy(self.algo.init_params, key, s.obs_dim, s.critic_obs_dim, s.action_dim, self.config,
-                                targets=("critic",))
-        k_state = XP.random.split(key, 2)[1]
-        log_alpha = mx.array(math.log(self.config.init_alpha), dtype=mx.float32)
-        state = SACState(
-            actor=params["actor"], critic=params["critic"], target_critic=params["target_critic"],
-            actor_opt=self.actor_tx.init(params["actor"]), critic_opt=self.critic_tx.init(params["critic"]),
-            log_alpha=log_alpha, alpha_opt=self.alpha_tx.init(log_alpha),
-            obs_norm=normalizer.stats_init(s.obs_dim, XP), critic_norm=normalizer.stats_init(s.critic_obs_dim, XP),
-            reward_norm=normalizer.stats_init(1, XP), key=k_state, steps=mx.array(0, dtype=mx.int32))
+        key = _as_key(key)
+        state = self.initial_state(self.init_params(np.asarray(key)), XP.random.split(key, 2)[1])
         mx.eval(state)
         return state
-
-    @staticmethod
-    def weights(state: SACState) -> dict:
-        return sac.policy_weights(state.actor, state.obs_norm)
-
-    def reward_scale(self, state: SACState) -> mx.array:
-        if self._reward_scale is None:
-            return mx.array(1.0, dtype=mx.float32)
-        return self._reward_scale(state.reward_norm, self.config)
 
     def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
                  eps: mx.array) -> tuple[tuple, dict]:
@@ -208,15 +156,9 @@ class SACFamilyLearner:
         """
         if not batch:
             return state, {}
-        cfg = self.config
-        batch = prepare_batch(batch)
-        obs_norm, critic_norm = update_obs_stats(state.obs_norm, state.critic_norm, batch, cfg.normalize_obs)
-        reward_norm = state.reward_norm
-        if self._reward_scale is not None:
-            reward_norm = normalizer.stats_update(reward_norm, batch["reward"][0][:, None])
-        state = state._replace(obs_norm=obs_norm, critic_norm=critic_norm, reward_norm=reward_norm)
-        scale = self.reward_scale(state).astype(mx.float32)
-        norms = (obs_norm, critic_norm, scale)
+        batch = _prepare_batch(batch)
+        state, norms = self.normalize(state, batch)
+        norms = tuple(norms)
 
         n = batch["reward"].shape[0]
         _check_noise(noise, ("eps_next", "eps"), n)
@@ -233,8 +175,8 @@ class SACFamilyLearner:
             carry, m = self._step(carry, norms, mb, eps_next, eps)
             mx.eval(carry, m)  # one eval per compiled step
             step_metrics.append(m)
-        metrics = _mean_metrics(step_metrics)
-        metrics["reward_scale"] = scale
+        metrics = common.mean_metrics(_stack(step_metrics))
+        metrics["reward_scale"] = norms[2]
         actor, critic, target_critic, actor_opt, critic_opt, log_alpha, alpha_opt, steps = carry
         new = state._replace(actor=actor, critic=critic, target_critic=target_critic, actor_opt=actor_opt,
                              critic_opt=critic_opt, log_alpha=log_alpha, alpha_opt=alpha_opt, steps=steps,
@@ -243,34 +185,18 @@ class SACFamilyLearner:
         return new, metrics
 
 
-class TD3Learner:
+class TD3Learner(common.TD3Base):
     """Learner for TD3: delayed actor and target updates every ``policy_delay`` gradient steps."""
 
     def __init__(self, config: td3.TD3Config, spec: Any):
-        self.config, self.spec = config, spec
-        self.actor_tx = make_optimizer(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
-        self.critic_tx = make_optimizer(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
-        self.trace_count = 0
+        super().__init__(config, spec, optim, XP)
         self._steps = {flag: mx.compile(functools.partial(self._step_fn, do_actor=flag)) for flag in (False, True)}
 
     def init(self, key: Any) -> TD3State:
-        s, key = self.spec, _as_key(key)
-        params = _init_on_numpy(td3.init_params, key, s.obs_dim, s.critic_obs_dim, s.action_dim, self.config,
-                                targets=("actor", "critic"))
-        k_state = XP.random.split(key, 2)[1]
-        state = TD3State(
-            actor=params["actor"], critic=params["critic"], target_actor=params["target_actor"],
-            target_critic=params["target_critic"], actor_opt=self.actor_tx.init(params["actor"]),
-            critic_opt=self.critic_tx.init(params["critic"]),
-            obs_norm=normalizer.stats_init(s.obs_dim, XP), critic_norm=normalizer.stats_init(s.critic_obs_dim, XP),
-            explore_std=mx.array(self.config.explore_std, dtype=mx.float32), key=k_state,
-            steps=mx.array(0, dtype=mx.int32))
+        key = _as_key(key)
+        state = self.initial_state(self.init_params(np.asarray(key)), XP.random.split(key, 2)[1])
         mx.eval(state)
         return state
-
-    @staticmethod
-    def weights(state: TD3State) -> dict:
-        return {"actor": state.actor, "obs_norm": state.obs_norm, "explore_std": state.explore_std}
 
     def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
                  do_actor: bool) -> tuple[tuple, dict]:
@@ -305,10 +231,9 @@ class TD3Learner:
         if not batch:
             return state, {}
         cfg = self.config
-        batch = prepare_batch(batch)
-        obs_norm, critic_norm = update_obs_stats(state.obs_norm, state.critic_norm, batch, cfg.normalize_obs)
-        state = state._replace(obs_norm=obs_norm, critic_norm=critic_norm)
-        norms = (obs_norm, critic_norm, mx.array(1.0, dtype=mx.float32))
+        batch = _prepare_batch(batch)
+        state, norms = self.normalize(state, batch)
+        norms = tuple(norms)
 
         n = batch["reward"].shape[0]
         _check_noise(noise, ("eps_next",), n)
@@ -325,26 +250,9 @@ class TD3Learner:
             carry, m = self._steps[do_actor](carry, norms, mb, eps_next)
             mx.eval(carry, m)  # one eval per compiled step
             step_metrics.append(m)
-        actor_steps = mx.sum(mx.stack([m.pop("actor_steps") for m in step_metrics]))
-        actor_loss_sum = mx.sum(mx.stack([m.pop("actor_loss_sum") for m in step_metrics]))
-        metrics = _mean_metrics(step_metrics)
-        metrics["actor_loss"] = actor_loss_sum / mx.maximum(actor_steps, 1.0)
-        metrics["actor_steps"] = actor_steps
+        metrics = common.td3_metrics(_stack(step_metrics))
         actor, critic, target_actor, target_critic, actor_opt, critic_opt, steps = carry
         new = state._replace(actor=actor, critic=critic, target_actor=target_actor, target_critic=target_critic,
                              actor_opt=actor_opt, critic_opt=critic_opt, steps=steps, key=keys[0])
         mx.eval(new, metrics)
         return new, metrics
-
-
-def state_from_numpy(tree: Any, like: Any) -> Any:
-    """``tree`` (a SACState/TD3State of numpy or JAX arrays, e.g. the JAX learner's) as an MLX state.
-
-    ``like`` is an MLX state giving structure, shapes and dtypes (``learner.init(key)``). The source
-    is read by name (dict keys, NamedTuple fields: optax's ``ScaleByAdamState``/``EmptyState`` map onto
-    ``unilab_mlx.optim``'s dicts); leaves go through ``np.asarray`` (no jax import here). A missing
-    field or a shape mismatch raises, naming the leaf.
-    """
-    out = _fill(like, tree)
-    mx.eval(out)
-    return out
