@@ -210,6 +210,3 @@ class CartpoleBalance(base.Task):
 
 def make(config: CartpoleConfig, num_envs: int, seed: int) -> CartpoleBalance:
     return CartpoleBalance(config, num_envs, seed)
-
-
-base.register("cartpole_balance", make, default_config)

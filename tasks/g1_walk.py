@@ -53,8 +53,8 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from tasks import base, walking
 from tasks import go1_joystick as go1
+from tasks import walking
 from unilab_jax import xp as shim
 
 FEET = ("left", "right")
@@ -296,6 +296,3 @@ class G1WalkFlat(walking.WalkingTask):
 
 def make(config: G1WalkConfig, num_envs: int, seed: int) -> G1WalkFlat:
     return G1WalkFlat(config, num_envs, seed)
-
-
-base.register("g1_walk_flat", make, default_config)

@@ -848,6 +848,3 @@ class Go1JoystickFlat(base.Task):
 
 def make(config: Go1JoystickConfig, num_envs: int, seed: int) -> Go1JoystickFlat:
     return Go1JoystickFlat(config, num_envs, seed)
-
-
-base.register("go1_joystick_flat", make, default_config)

@@ -69,8 +69,8 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from tasks import base, walking
 from tasks import go1_joystick as go1
+from tasks import walking
 from unilab_jax import xp as shim
 
 FEET = ("FL", "FR", "RL", "RR")  # Menagerie's foot geoms, in actuator (leg) order
@@ -199,6 +199,3 @@ class Go2JoystickFlat(walking.WalkingTask):
 
 def make(config: Go2JoystickConfig, num_envs: int, seed: int) -> Go2JoystickFlat:
     return Go2JoystickFlat(config, num_envs, seed)
-
-
-base.register("go2_joystick_flat", make, default_config)
