@@ -35,8 +35,8 @@ from unilab_jax import nets
 from unilab_jax import xp as shim
 from unilab_jax.algos.offpolicy.sac import (
     Norms,
+    SACConfig,
     act,
-    check_config,
     critic_input,
     discounts,
     ensemble_init,
@@ -57,37 +57,31 @@ __all__ = ["SYNC", "BUFFER", "Config", "FastSACConfig", "extras", "act", "make_l
 
 
 @dataclasses.dataclass(frozen=True)
-class FastSACConfig:
-    """FastSAC hyperparameters (FastTD3/FastSAC-style; runtime fields as in ``sac.SACConfig``)."""
+class CategoricalSACConfig(SACConfig):
+    """SAC for many parallel envs with C51 twin critics (FastSAC's and FlashSAC's common ground): large
+    batches and replay, fast Polyak, the categorical support and clipped double Q."""
 
-    actor_hidden: tuple[int, ...] = (512, 256, 128)
-    critic_hidden: tuple[int, ...] = (1024, 512, 256)
-    actor_learning_rate: float = 3e-4
-    critic_learning_rate: float = 3e-4
-    alpha_learning_rate: float = 3e-4
     batch_size: int = 8192
-    utd: float = 8.0 / 1024.0
-    updates_per_call: int = 8
     replay_capacity: int = 2_097_152
     learning_starts: int = 16_384
-    publish_every: int = 8
-    horizon: int = 32  # env steps per worker chunk (bookkeeping only: async workers poll weights every step)
-    gamma: float = 0.97
     tau: float = 0.1
-    normalize_obs: bool = True
-    init_alpha: float = 0.001
-    autotune_alpha: bool = True
-    target_entropy_per_dim: float = -1.0
     num_atoms: int = 101
     v_min: float = -10.0
     v_max: float = 10.0
-    critic_layer_norm: bool = True
     use_cdq: bool = True
-    max_grad_norm: float = 0.0
-    weight_decay: float = 0.1
 
-    def __post_init__(self) -> None:
-        check_config(self)
+
+@dataclasses.dataclass(frozen=True)
+class FastSACConfig(CategoricalSACConfig):
+    """FastSAC hyperparameters (FastTD3/FastSAC-style)."""
+
+    actor_hidden: tuple[int, ...] = (512, 256, 128)
+    critic_hidden: tuple[int, ...] = (1024, 512, 256)
+    utd: float = 8.0 / 1024.0
+    gamma: float = 0.97
+    init_alpha: float = 0.001
+    critic_layer_norm: bool = True
+    weight_decay: float = 0.1
 
 
 Config = FastSACConfig

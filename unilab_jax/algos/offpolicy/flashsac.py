@@ -40,10 +40,15 @@ import dataclasses
 from typing import Any
 
 from unilab_jax import xp as shim
-from unilab_jax.algos.offpolicy.fastsac import categorical_critic_loss, categorical_q_fn, categorical_target, support
+from unilab_jax.algos.offpolicy.fastsac import (
+    CategoricalSACConfig,
+    categorical_critic_loss,
+    categorical_q_fn,
+    categorical_target,
+    support,
+)
 from unilab_jax.algos.offpolicy.sac import (
     Norms,
-    check_config,
     extras,
     soft_actor_loss,
     tanh_gaussian_act,
@@ -63,38 +68,21 @@ __all__ = ["SYNC", "BUFFER", "NOISE_HOLD_STEPS", "Config", "FlashSACConfig", "ex
 
 
 @dataclasses.dataclass(frozen=True)
-class FlashSACConfig:
-    """FlashSAC hyperparameters (runtime fields as in ``sac.SACConfig``)."""
+class FlashSACConfig(CategoricalSACConfig):
+    """FlashSAC hyperparameters: FastSAC's categorical SAC with norm-bounded networks, a support for
+    normalised returns, fewer updates and clipped gradients."""
 
     actor_hidden: tuple[int, ...] = (256, 256, 256)
     critic_hidden: tuple[int, ...] = (512, 512, 512)
-    actor_learning_rate: float = 3e-4
-    critic_learning_rate: float = 3e-4
-    alpha_learning_rate: float = 3e-4
-    batch_size: int = 8192
     utd: float = 2.0 / 1024.0
     updates_per_call: int = 4
-    replay_capacity: int = 2_097_152
-    learning_starts: int = 16_384
     publish_every: int = 4
-    horizon: int = 32  # env steps per worker chunk (bookkeeping only: async workers poll weights every step)
-    gamma: float = 0.99
-    tau: float = 0.1
-    normalize_obs: bool = True
-    normalize_rewards: bool = True
     init_alpha: float = 0.01
-    autotune_alpha: bool = True
-    target_entropy_per_dim: float = -1.0
-    num_atoms: int = 101
     v_min: float = -5.0
     v_max: float = 5.0
-    use_cdq: bool = True
-    head_scale: float = 0.1  # initial output gain ``s`` of the heads
     max_grad_norm: float = 1.0
-    weight_decay: float = 0.0
-
-    def __post_init__(self) -> None:
-        check_config(self)
+    normalize_rewards: bool = True
+    head_scale: float = 0.1  # initial output gain ``s`` of the heads
 
 
 Config = FlashSACConfig

@@ -43,11 +43,22 @@ def _key_words(key: jax.Array) -> np.ndarray:
     return np.asarray(jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key)
 
 
-def _skip_or_update(update: Any, state: Any, batch: dict) -> tuple[Any, dict]:
-    """An empty batch (``{}``: the trainer's replay source while the ring warms up) is a no-op."""
-    if not batch:
-        return state, {}
-    return update(state, batch)
+class _Jitted:
+    """The JAX side of every off-policy learner: ``_update`` as ONE jit (state donated), ``init``."""
+
+    def _compile(self, compiler_options: dict | None) -> None:
+        self._update_jit = jax.jit(self._update, donate_argnums=0, compiler_options=compiler_options)
+        self._init_state = jax.jit(self.initial_state, compiler_options=compiler_options)
+
+    def update(self, state: Any, batch: dict) -> tuple[Any, dict]:
+        """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` (the trainer's
+        replay source while the ring warms up) is a no-op."""
+        if not batch:
+            return state, {}
+        return self._update_jit(state, batch)
+
+    def init(self, key: jax.Array) -> Any:
+        return self._init_state(self.init_params(_key_words(key)), jax.random.split(key)[1])
 
 
 def make_td3_learner(algo: ModuleType, config: td3.TD3Config, spec: Any) -> TD3Learner:
@@ -55,20 +66,12 @@ def make_td3_learner(algo: ModuleType, config: td3.TD3Config, spec: Any) -> TD3L
     return TD3Learner(config, spec)
 
 
-class SACFamilyLearner(common.SACFamilyBase):
+class SACFamilyLearner(_Jitted, common.SACFamilyBase):
     """Learner for SAC, FastSAC and FlashSAC (``algo`` is the algorithm module)."""
 
     def __init__(self, algo: ModuleType, config: Any, spec: Any, compiler_options: dict | None = None):
         super().__init__(algo, config, spec, optax, XP)
-        self._update_jit = jax.jit(self._update, donate_argnums=0, compiler_options=compiler_options)
-        self._init_state = jax.jit(self.initial_state, compiler_options=compiler_options)
-
-    def update(self, state: SACState, batch: dict) -> tuple[SACState, dict]:
-        """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` is a no-op."""
-        return _skip_or_update(self._update_jit, state, batch)
-
-    def init(self, key: jax.Array) -> SACState:
-        return self._init_state(self.init_params(_key_words(key)), jax.random.split(key)[1])
+        self._compile(compiler_options)
 
     def _update(self, state: SACState, batch: dict) -> tuple[SACState, dict]:
         self.trace_count += 1
@@ -115,20 +118,12 @@ class SACFamilyLearner(common.SACFamilyBase):
         return state._replace(key=keys[0]), metrics
 
 
-class TD3Learner(common.TD3Base):
+class TD3Learner(_Jitted, common.TD3Base):
     """Learner for TD3: delayed actor and target updates every ``policy_delay`` gradient steps."""
 
     def __init__(self, config: td3.TD3Config, spec: Any, compiler_options: dict | None = None):
         super().__init__(config, spec, optax, XP)
-        self._update_jit = jax.jit(self._update, donate_argnums=0, compiler_options=compiler_options)
-        self._init_state = jax.jit(self.initial_state, compiler_options=compiler_options)
-
-    def update(self, state: TD3State, batch: dict) -> tuple[TD3State, dict]:
-        """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` is a no-op."""
-        return _skip_or_update(self._update_jit, state, batch)
-
-    def init(self, key: jax.Array) -> TD3State:
-        return self._init_state(self.init_params(_key_words(key)), jax.random.split(key)[1])
+        self._compile(compiler_options)
 
     def _update(self, state: TD3State, batch: dict) -> tuple[TD3State, dict]:
         self.trace_count += 1

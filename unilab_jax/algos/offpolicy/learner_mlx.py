@@ -75,6 +75,16 @@ def _prepare_batch(batch: Mapping[str, Any]) -> dict:
                                  for k in BATCH_FIELDS})
 
 
+class _Compiled:
+    """The MLX side of every off-policy learner: ``init`` (the state evaluated once)."""
+
+    def init(self, key: Any) -> Any:
+        key = _as_key(key)
+        state = self.initial_state(self.init_params(np.asarray(key)), XP.random.split(key, 2)[1])
+        mx.eval(state)
+        return state
+
+
 def _stack(step_metrics: list[dict]) -> dict:
     return {k: mx.stack([m[k] for m in step_metrics]) for k in step_metrics[0]}
 
@@ -103,18 +113,12 @@ def _check_noise(noise: Mapping[str, Any] | None, names: tuple[str, ...], n: int
             raise ValueError(f"noise needs {names} with at least {n} steps each")
 
 
-class SACFamilyLearner(common.SACFamilyBase):
+class SACFamilyLearner(_Compiled, common.SACFamilyBase):
     """Learner for SAC, FastSAC and FlashSAC (``algo`` is the algorithm module)."""
 
     def __init__(self, algo: ModuleType, config: Any, spec: Any):
         super().__init__(algo, config, spec, optim, XP)
         self._step = mx.compile(self._step_fn)
-
-    def init(self, key: Any) -> SACState:
-        key = _as_key(key)
-        state = self.initial_state(self.init_params(np.asarray(key)), XP.random.split(key, 2)[1])
-        mx.eval(state)
-        return state
 
     def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
                  eps: mx.array) -> tuple[tuple, dict]:
@@ -185,18 +189,12 @@ class SACFamilyLearner(common.SACFamilyBase):
         return new, metrics
 
 
-class TD3Learner(common.TD3Base):
+class TD3Learner(_Compiled, common.TD3Base):
     """Learner for TD3: delayed actor and target updates every ``policy_delay`` gradient steps."""
 
     def __init__(self, config: td3.TD3Config, spec: Any):
         super().__init__(config, spec, optim, XP)
         self._steps = {flag: mx.compile(functools.partial(self._step_fn, do_actor=flag)) for flag in (False, True)}
-
-    def init(self, key: Any) -> TD3State:
-        key = _as_key(key)
-        state = self.initial_state(self.init_params(np.asarray(key)), XP.random.split(key, 2)[1])
-        mx.eval(state)
-        return state
 
     def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
                  do_actor: bool) -> tuple[tuple, dict]:

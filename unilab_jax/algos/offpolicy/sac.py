@@ -45,8 +45,8 @@ ACTIVATION = "relu"  # hidden activation of actor and critics (the workers' ``ac
 
 
 @dataclasses.dataclass(frozen=True)
-class SACConfig:
-    """SAC hyperparameters (Haarnoja et al. / CleanRL defaults, sized for many parallel envs).
+class OffPolicyConfig:
+    """What every off-policy algorithm of this family configures (defaults: SAC's).
 
     Runtime fields: ``utd`` gradient steps per collected transition; ``updates_per_call`` (U)
     gradient steps scanned inside one jitted ``update`` (the batch is ``[U, batch_size, ...]``);
@@ -59,7 +59,6 @@ class SACConfig:
     critic_hidden: tuple[int, ...] = (256, 256)
     actor_learning_rate: float = 3e-4
     critic_learning_rate: float = 3e-4
-    alpha_learning_rate: float = 3e-4
     batch_size: int = 512
     utd: float = 1.0
     updates_per_call: int = 8
@@ -70,14 +69,22 @@ class SACConfig:
     gamma: float = 0.99
     tau: float = 0.005
     normalize_obs: bool = True
-    init_alpha: float = 0.2
-    autotune_alpha: bool = True
-    target_entropy_per_dim: float = -1.0  # target entropy = this * action_dim
     max_grad_norm: float = 0.0  # 0 disables gradient clipping
     weight_decay: float = 0.0  # decoupled (AdamW) when > 0
 
     def __post_init__(self) -> None:
         check_config(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig(OffPolicyConfig):
+    """SAC hyperparameters (Haarnoja et al. / CleanRL defaults, sized for many parallel envs): the
+    off-policy fields plus the temperature's."""
+
+    alpha_learning_rate: float = 3e-4
+    init_alpha: float = 0.2
+    autotune_alpha: bool = True
+    target_entropy_per_dim: float = -1.0  # target entropy = this * action_dim
 
 
 Config = SACConfig

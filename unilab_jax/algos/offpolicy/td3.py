@@ -28,10 +28,11 @@ from unilab_jax import xp as shim
 from unilab_jax.algos.offpolicy.sac import (
     ACTIVATION,
     Norms,
-    check_config,
+    OffPolicyConfig,
     critic_input,
     discounts,
     ensemble_init,
+    extras,
     mlp_apply,
 )
 from unilab_jax.core import normalizer
@@ -46,32 +47,14 @@ __all__ = ["SYNC", "BUFFER", "ACTIVATION", "Config", "TD3Config", "extras", "act
 
 
 @dataclasses.dataclass(frozen=True)
-class TD3Config:
-    """TD3 hyperparameters (Fujimoto et al. defaults). Runtime fields as in ``sac.SACConfig``."""
+class TD3Config(OffPolicyConfig):
+    """TD3 hyperparameters (Fujimoto et al. defaults): the off-policy fields (``sac.OffPolicyConfig``)
+    plus exploration, target smoothing and the policy delay."""
 
-    actor_hidden: tuple[int, ...] = (256, 256)
-    critic_hidden: tuple[int, ...] = (256, 256)
-    actor_learning_rate: float = 3e-4
-    critic_learning_rate: float = 3e-4
-    batch_size: int = 512
-    utd: float = 1.0
-    updates_per_call: int = 8
-    replay_capacity: int = 1_000_000
-    learning_starts: int = 5_000
-    publish_every: int = 8
-    horizon: int = 32  # env steps per worker chunk (bookkeeping only: async workers poll weights every step)
-    gamma: float = 0.99
-    tau: float = 0.005
-    normalize_obs: bool = True
     explore_std: float = 0.1  # std of the exploration noise added in the workers
     policy_noise: float = 0.2  # std of the target policy smoothing noise
     noise_clip: float = 0.5
     policy_delay: int = 2  # critic steps per actor (and target) step
-    max_grad_norm: float = 0.0
-    weight_decay: float = 0.0
-
-    def __post_init__(self) -> None:
-        check_config(self)
 
 
 Config = TD3Config
@@ -92,10 +75,6 @@ class TD3State(NamedTuple):
     explore_std: Any  # [] float32, published to the workers
     key: Any
     steps: Any
-
-
-def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
-    return {}
 
 
 def init_params(key: Any, obs_dim: int, critic_obs_dim: int, action_dim: int, config: TD3Config,

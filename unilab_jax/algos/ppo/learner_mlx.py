@@ -87,12 +87,7 @@ def make_learner(algo: Any, config: ppo.PPOConfig, spec: TaskSpec) -> Learner:
 
 
 class Learner:
-    """``init(key) -> TrainState``; ``update(state, batch) -> (state, metrics)``; ``weights(state)``.
-
-    ``use_vtrace=True`` gives APPO: advantages and value targets come from V-trace with importance
-    ratios between the current policy and the (possibly stale) behaviour policy, and the policy
-    loss uses the asymmetric clip [1/(1+eps), 1+eps].
-    """
+    """``learner_jax.Learner``'s interface and numbers on MLX (``use_vtrace=True``: APPO)."""
 
     def __init__(self, config: ppo.PPOConfig, spec: TaskSpec, use_vtrace: bool = False):
         self.config, self.spec, self.use_vtrace = config, spec, use_vtrace
