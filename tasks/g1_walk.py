@@ -49,6 +49,7 @@ single-threaded process pinned to one core, CPU time, on the loaded 2-core dev V
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import mujoco
 import numpy as np
@@ -203,26 +204,8 @@ def pose_weights(config: G1WalkConfig, joint_names) -> np.ndarray:
     return np.array([weight(n) for n in joint_names])
 
 
-def reward_terms(*, command, local_linvel, gyro, gravity, base_z, joint_pos, default_pose, pose_weight, action,
-                 last_act, actuator_force, contact, stance, feet_h, feet_vel, done, tracking_sigma: float,
-                 base_height_target: float, swing_height_target: float, swing_height_sigma: float):
-    """Unscaled reward terms, each [M], in ``REWARD_TERMS`` order."""
-    xp = shim.namespace(joint_pos)
-    return {
-        "tracking_lin_vel": go1.reward_tracking_lin_vel(command, local_linvel, tracking_sigma),
-        "tracking_ang_vel": go1.reward_tracking_ang_vel(command, gyro, tracking_sigma),
-        "lin_vel_z": go1.cost_lin_vel_z(local_linvel),
-        "ang_vel_xy": go1.cost_ang_vel_xy(gyro),
-        "orientation": go1.cost_orientation(gravity),
-        "base_height": walking.cost_base_height(base_z, base_height_target),
-        "action_rate": go1.cost_action_rate(action, last_act),
-        "torques": go1.cost_torques(actuator_force),
-        "feet_contact_phase": walking.reward_contact_phase(contact, stance),
-        "feet_swing_height": walking.reward_swing_height(feet_h, stance, swing_height_target, swing_height_sigma),
-        "feet_slip": go1.cost_feet_slip(command, feet_vel, contact),
-        "pose": walking.cost_pose_l1(joint_pos, default_pose, pose_weight),
-        "termination": xp.astype(done, joint_pos.dtype),
-    }
+# The task's unscaled terms as functions of their inputs (``walking.reward_terms``, tests call it directly).
+reward_terms = functools.partial(walking.reward_terms, REWARD_TERMS)
 
 
 class G1WalkFlat(walking.WalkingTask):
@@ -261,18 +244,6 @@ class G1WalkFlat(walking.WalkingTask):
     def critic_extra(self, s):
         xp = shim.namespace(s["base_z"])
         return xp.concat([s["base_z"][:, None], xp.astype(s["contact"], s["base_z"].dtype), s["feet_h"]], axis=1)
-
-    def reward_terms(self, s, action, done):
-        c = self.config
-        return reward_terms(
-            command=s["command"], local_linvel=s["local_linvel"], gyro=s["gyro"], gravity=s["gravity"],
-            base_z=s["base_z"], joint_pos=s["joint_pos"], default_pose=self.default_pose,
-            pose_weight=self.pose_weight, action=action, last_act=s["last_act"],
-            actuator_force=s["actuator_force"], contact=s["contact"], stance=s["stance"], feet_h=s["feet_h"],
-            feet_vel=s["feet_vel"], done=done, tracking_sigma=c.tracking_sigma,
-            base_height_target=c.base_height_target, swing_height_target=c.swing_height_target,
-            swing_height_sigma=c.swing_height_sigma,
-        )
 
     # ---- domain randomisation -----------------------------------------------------------------
     def sample_dr(self) -> dict[str, np.ndarray]:

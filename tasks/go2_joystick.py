@@ -65,13 +65,13 @@ Choices where DESIGN.md is silent (documented deviations):
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import mujoco
 import numpy as np
 
 from tasks import go1_joystick as go1
 from tasks import walking
-from unilab_jax import xp as shim
 
 FEET = ("FL", "FR", "RL", "RR")  # Menagerie's foot geoms, in actuator (leg) order
 REWARD_TERMS = (
@@ -128,22 +128,8 @@ def build_spec(config: Go2JoystickConfig) -> mujoco.MjSpec:
     return spec
 
 
-def reward_terms(*, command, local_linvel, gyro, base_z, joint_pos, default_pose, action, last_act, contact,
-                 stance, feet_h, tracking_sigma: float, base_height_target: float, swing_height_target: float,
-                 swing_height_sigma: float):
-    """Unscaled reward terms, each [M], in ``REWARD_TERMS`` order."""
-    xp = shim.namespace(joint_pos)
-    return {
-        "tracking_lin_vel": go1.reward_tracking_lin_vel(command, local_linvel, tracking_sigma),
-        "tracking_ang_vel": go1.reward_tracking_ang_vel(command, gyro, tracking_sigma),
-        "lin_vel_z": go1.cost_lin_vel_z(local_linvel),
-        "ang_vel_xy": go1.cost_ang_vel_xy(gyro),
-        "base_height": walking.cost_base_height(base_z, base_height_target),
-        "action_rate": go1.cost_action_rate(action, last_act),
-        "pose": walking.cost_pose_l1(joint_pos, default_pose, xp.ones_like(default_pose)),
-        "feet_contact_phase": walking.reward_contact_phase(contact, stance),
-        "feet_swing_height": walking.reward_swing_height(feet_h, stance, swing_height_target, swing_height_sigma),
-    }
+# The task's unscaled terms as functions of their inputs (``walking.reward_terms``, tests call it directly).
+reward_terms = functools.partial(walking.reward_terms, REWARD_TERMS)
 
 
 class Go2JoystickFlat(walking.WalkingTask):
@@ -162,16 +148,6 @@ class Go2JoystickFlat(walking.WalkingTask):
 
     def sole_offsets(self, model: mujoco.MjModel) -> np.ndarray:
         return model.geom_size[self.foot_geoms(model), 0]  # foot sphere radius
-
-    def reward_terms(self, s, action, done):
-        c = self.config
-        return reward_terms(
-            command=s["command"], local_linvel=s["local_linvel"], gyro=s["gyro"], base_z=s["base_z"],
-            joint_pos=s["joint_pos"], default_pose=self.default_pose, action=action, last_act=s["last_act"],
-            contact=s["contact"], stance=s["stance"], feet_h=s["feet_h"], tracking_sigma=c.tracking_sigma,
-            base_height_target=c.base_height_target, swing_height_target=c.swing_height_target,
-            swing_height_sigma=c.swing_height_sigma,
-        )
 
     # ---- domain randomisation -----------------------------------------------------------------
     def sample_dr(self) -> dict[str, np.ndarray]:
