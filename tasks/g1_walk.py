@@ -54,7 +54,6 @@ import functools
 import mujoco
 import numpy as np
 
-from tasks import go1_joystick as go1
 from tasks import walking
 from unilab_jax import xp as shim
 
@@ -162,19 +161,14 @@ def default_config() -> G1WalkConfig:
 
 def build_spec(config: G1WalkConfig) -> mujoco.MjSpec:
     """Unitree's G1 scene with the task's MjSpec edits (solver, feet-only contacts, servos, sensors)."""
-    spec = go1.load_menagerie_spec("unitree_g1")
-    go1.set_solver(spec, config)
-    for s in list(spec.sensors):
-        spec.delete(s)
-    go1.strip_visuals(spec)
-    feet = [g for b in FOOT_BODIES for g in spec.body(b).geoms if g.type == mujoco.mjtGeom.mjGEOM_SPHERE]
+    spec, feet = walking.robot_spec("unitree_g1", config, lambda spec: [
+        g for b in FOOT_BODIES for g in spec.body(b).geoms if g.type == mujoco.mjtGeom.mjGEOM_SPHERE])
     if len(feet) != 8:
         raise ValueError(f"expected 4 contact spheres under each ankle-roll link, found {len(feet)}")
-    go1.feet_only_contacts(spec, feet)
+    for s in list(spec.sensors):
+        spec.delete(s)
     floor = spec.geom("floor")
     floor.priority, floor.condim = 1, 3
-    for g in feet:
-        g.condim = 3
     c = config
     gains = {"hip": (c.kp_hip, c.kd_hip), "knee": (c.kp_knee, c.kd_knee), "ankle": (c.kp_ankle, c.kd_ankle),
              "waist": (c.kp_waist, c.kd_waist), "arm": (c.kp_arm, c.kd_arm), "wrist": (c.kp_wrist, c.kd_wrist)}

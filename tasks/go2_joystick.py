@@ -70,7 +70,6 @@ import functools
 import mujoco
 import numpy as np
 
-from tasks import go1_joystick as go1
 from tasks import walking
 
 FEET = ("FL", "FR", "RL", "RR")  # Menagerie's foot geoms, in actuator (leg) order
@@ -114,13 +113,7 @@ def default_config() -> Go2JoystickConfig:
 
 def build_spec(config: Go2JoystickConfig) -> mujoco.MjSpec:
     """Menagerie's Go2 scene with the task's MjSpec edits (solver, feet-only contacts, servos, sensors)."""
-    spec = go1.load_menagerie_spec("unitree_go2")
-    go1.set_solver(spec, config)
-    go1.strip_visuals(spec)
-    feet = [spec.geom(f) for f in FEET]
-    go1.feet_only_contacts(spec, feet)
-    for g in feet:
-        g.condim = 3
+    spec, _ = walking.robot_spec("unitree_go2", config, lambda spec: [spec.geom(f) for f in FEET])
     n = len(spec.actuators)
     walking.position_servos(spec, [config.kp] * n, [config.kd] * n)
     G = mujoco.mjtObj.mjOBJ_GEOM

@@ -88,6 +88,20 @@ def reward_scales(config: Any, terms: Sequence[str]) -> dict[str, float]:
 # --------------------------------------------------------------------------------------------------
 # Model helpers (MjSpec edits)
 # --------------------------------------------------------------------------------------------------
+def robot_spec(robot: str, config: Any, find_feet: Callable[[mujoco.MjSpec], list]) -> tuple[mujoco.MjSpec, list]:
+    """A Menagerie robot's scene with the edits every walking task makes: the config's solver, no visual-only
+    assets, and contacts between the feet (``find_feet(spec)``, once the visuals are gone) and the floor
+    only, with condim 3 on the feet. Returns (spec, feet)."""
+    spec = go1.load_menagerie_spec(robot)
+    go1.set_solver(spec, config)
+    go1.strip_visuals(spec)
+    feet = find_feet(spec)
+    go1.feet_only_contacts(spec, feet)
+    for g in feet:
+        g.condim = 3
+    return spec, feet
+
+
 def position_servos(spec: mujoco.MjSpec, kp: Sequence[float], kd: Sequence[float]) -> np.ndarray:
     """Turns the robot's torque motors into PD position servos; returns their torque limits [nu].
 
