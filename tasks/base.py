@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -77,6 +77,24 @@ class Task(abc.ABC):
 
     def close(self) -> None:  # noqa: B027  (optional hook, not abstract)
         """Releases resources (nothing by default)."""
+
+
+def with_reward_scales(scales: Mapping[str, float]) -> Callable[[type], type]:
+    """Class decorator for a frozen task config: a float field ``scale_<term>`` per reward term of ``scales``
+    (``{term: default scale}``, in the task's term order), so a task names each term and its scale once."""
+
+    def decorate(cls: type) -> type:
+        fields = [(f"scale_{term}", float, dataclasses.field(default=float(scale))) for term, scale in scales.items()]
+        out = dataclasses.make_dataclass(cls.__name__, fields, bases=(cls,), frozen=True)
+        out.__module__, out.__qualname__, out.__doc__ = cls.__module__, cls.__qualname__, cls.__doc__
+        return out
+
+    return decorate
+
+
+def reward_scales(config: Any, terms: Sequence[str]) -> dict[str, float]:
+    """``{term: config.scale_<term>}`` for ``terms``."""
+    return {name: float(getattr(config, f"scale_{name}")) for name in terms}
 
 
 class _ByName:

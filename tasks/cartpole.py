@@ -65,7 +65,7 @@ def default_config() -> CartpoleConfig:
 
 
 def reward_scales(config: CartpoleConfig) -> dict[str, float]:
-    return {name: float(getattr(config, f"scale_{name}")) for name in REWARD_TERMS}
+    return base.reward_scales(config, REWARD_TERMS)
 
 
 def build_spec(config: CartpoleConfig) -> mujoco.MjSpec:

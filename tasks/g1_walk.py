@@ -54,26 +54,18 @@ import functools
 import mujoco
 import numpy as np
 
-from tasks import walking
+from tasks import base, walking
 from unilab_jax import xp as shim
 
 FEET = ("left", "right")
 FOOT_BODIES = ("left_ankle_roll_link", "right_ankle_roll_link")
-REWARD_TERMS = (
-    "tracking_lin_vel",
-    "tracking_ang_vel",
-    "lin_vel_z",
-    "ang_vel_xy",
-    "orientation",
-    "base_height",
-    "action_rate",
-    "torques",
-    "feet_contact_phase",
-    "feet_swing_height",
-    "feet_slip",
-    "pose",
-    "termination",
-)
+# Reward terms (in this order) and their default scales; each is the config field ``scale_<term>``.
+REWARD_SCALES = {
+    "tracking_lin_vel": 1.0, "tracking_ang_vel": 0.5, "lin_vel_z": -2.0, "ang_vel_xy": -0.05, "orientation": -2.0,
+    "base_height": -10.0, "action_rate": -0.01, "torques": -2e-4, "feet_contact_phase": 0.2,
+    "feet_swing_height": 0.5, "feet_slip": -0.1, "pose": -0.5, "termination": -20.0,
+}
+REWARD_TERMS = tuple(REWARD_SCALES)
 # Default joint angles by joint name (unlisted joints: 0).
 DEFAULT_POSE = {
     "left_hip_pitch_joint": -0.312, "right_hip_pitch_joint": -0.312,
@@ -94,6 +86,7 @@ def joint_group(name: str) -> str:
     return "wrist" if ("wrist_pitch" in name or "wrist_yaw" in name) else "arm"
 
 
+@base.with_reward_scales(REWARD_SCALES)
 @dataclasses.dataclass(frozen=True)
 class G1WalkConfig(walking.WalkingConfig):
     """Configuration of ``g1_walk_flat`` (override any field by name)."""
@@ -137,19 +130,6 @@ class G1WalkConfig(walking.WalkingConfig):
     pose_weight_ankle_roll: float = 0.5
     pose_weight_waist: float = 1.0
     pose_weight_arm: float = 0.5
-    scale_tracking_lin_vel: float = 1.0
-    scale_tracking_ang_vel: float = 0.5
-    scale_lin_vel_z: float = -2.0
-    scale_ang_vel_xy: float = -0.05
-    scale_orientation: float = -2.0
-    scale_base_height: float = -10.0
-    scale_action_rate: float = -0.01
-    scale_torques: float = -2e-4
-    scale_feet_contact_phase: float = 0.2
-    scale_feet_swing_height: float = 0.5
-    scale_feet_slip: float = -0.1
-    scale_pose: float = -0.5
-    scale_termination: float = -20.0
     dr_floor_friction: tuple[float, float] = (0.4, 1.0)
     dr_mass_scale: tuple[float, float] = (0.9, 1.1)
     dr_torso_com: float = 0.03

@@ -70,37 +70,24 @@ import functools
 import mujoco
 import numpy as np
 
-from tasks import walking
+from tasks import base, walking
 
 FEET = ("FL", "FR", "RL", "RR")  # Menagerie's foot geoms, in actuator (leg) order
-REWARD_TERMS = (
-    "tracking_lin_vel",
-    "tracking_ang_vel",
-    "lin_vel_z",
-    "ang_vel_xy",
-    "base_height",
-    "action_rate",
-    "pose",
-    "feet_contact_phase",
-    "feet_swing_height",
-)
+# Reward terms (in this order) and their default scales (UniLab's); each is the config field ``scale_<term>``.
+REWARD_SCALES = {
+    "tracking_lin_vel": 1.0, "tracking_ang_vel": 0.2, "lin_vel_z": -5.0, "ang_vel_xy": -0.1, "base_height": -20.0,
+    "action_rate": -0.02, "pose": -0.4, "feet_contact_phase": 1.5, "feet_swing_height": 4.0,
+}
+REWARD_TERMS = tuple(REWARD_SCALES)
 
 
+@base.with_reward_scales(REWARD_SCALES)
 @dataclasses.dataclass(frozen=True)
 class Go2JoystickConfig(walking.WalkingConfig):
     """Configuration of ``go2_joystick_flat`` (UniLab's values; override any field by name)."""
 
     kp: float = 35.0
     kd: float = 0.5
-    scale_tracking_lin_vel: float = 1.0
-    scale_tracking_ang_vel: float = 0.2
-    scale_lin_vel_z: float = -5.0
-    scale_ang_vel_xy: float = -0.1
-    scale_base_height: float = -20.0
-    scale_action_rate: float = -0.02
-    scale_pose: float = -0.4
-    scale_feet_contact_phase: float = 1.5
-    scale_feet_swing_height: float = 4.0
     dr_kp_scale: tuple[float, float] = (0.9, 1.1)
     dr_kd_scale: tuple[float, float] = (0.9, 1.1)
     dr_base_mass_delta: float = 1.5

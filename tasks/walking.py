@@ -81,10 +81,6 @@ class WalkingConfig:
     sensors_every_substep: bool = False
 
 
-def reward_scales(config: Any, terms: Sequence[str]) -> dict[str, float]:
-    return {name: float(getattr(config, f"scale_{name}")) for name in terms}
-
-
 # --------------------------------------------------------------------------------------------------
 # Model helpers (MjSpec edits)
 # --------------------------------------------------------------------------------------------------
@@ -365,7 +361,7 @@ class WalkingTask(base.Task):
             [np.full(3, c.noise_gyro), np.full(3, c.noise_gravity), np.full(n, c.noise_joint_pos),
              np.full(n, c.noise_joint_vel)]
         )
-        self.scales = reward_scales(c, self.REWARD_TERMS)
+        self.scales = base.reward_scales(c, self.REWARD_TERMS)
         self._cmd_low, self._cmd_high = np.array(c.command_low), np.array(c.command_high)
         self._push_every = round(c.push_interval_s / self.dt) if c.push_interval_s > 0 else 0
         # Domain randomisation: per-env parameters (self.dr, flattened in self.extrinsics) and models.
