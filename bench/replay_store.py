@@ -43,7 +43,7 @@ for p in (REPO, HERE):
 
 import numpy as np  # noqa: E402
 
-from unilab_jax.algos import REPLAY_FIELDS  # noqa: E402
+from unilab_jax.fields import REPLAY_FIELDS  # noqa: E402
 from unilab_jax.runtime.buffers import ReplayBuffer, transition_layout  # noqa: E402
 from unilab_jax.runtime.replay_store import ReplayStore, TieredSampler  # noqa: E402
 

@@ -69,9 +69,9 @@ CONFIGS: dict[str, dict[str, Any]] = {
                     "eval_every": 2_000_000, "flags": ["--num_envs=1024"]},
 }
 SOURCES = ("tasks/go1_joystick.py", "tasks/mjx_go1.py", "tasks/physics.py", "unilab_jax/trainer.py",
-           "unilab_jax/mjx_train.py", "unilab_jax/algos/ppo.py", "unilab_jax/algos/ppo_jax.py",
-           "unilab_jax/algos/fastsac.py", "unilab_jax/algos/offpolicy_jax.py", "unilab_jax/runtime/pool.py",
-           "unilab_jax/runtime/worker.py")
+           "unilab_jax/mjx_train.py", "unilab_jax/algos/ppo/ppo.py", "unilab_jax/algos/ppo/learner_jax.py",
+           "unilab_jax/algos/offpolicy/fastsac.py", "unilab_jax/algos/offpolicy/learner_jax.py",
+           "unilab_jax/runtime/pool.py", "unilab_jax/runtime/worker.py")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -12,12 +12,11 @@ therefore lie in about [-1.5, 1.7]; [-2, 3] keeps a 0.05 atom spacing. Initial p
 joint (the bounded log-std head at its midpoint).
 """
 
+from fastsac_go1 import RECIPE as GO1_RECIPE  # FastSAC's recipe; only the support differs
+
 from unilab_jax.cli import run_experiment
 
-RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 8192,
-          "utd": 8 / 1024, "updates_per_call": 8, "publish_every": 8, "replay_capacity": 2_097_152,
-          "learning_starts": 16_384, "gamma": 0.97, "tau": 0.1, "init_alpha": 0.001, "num_atoms": 101,
-          "v_min": -2.0, "v_max": 3.0, "critic_layer_norm": True, "weight_decay": 0.1}
+RECIPE = {**GO1_RECIPE, "v_min": -2.0, "v_max": 3.0}
 
 if __name__ == "__main__":
     run_experiment(algo="fastsac", task="g1_walk_flat", recipe=RECIPE, default_total_steps=100_000_000)

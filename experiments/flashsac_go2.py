@@ -13,12 +13,11 @@ per-step reward is r / rms * 0.01 and normalised returns are ~mean(r) / rms(r): 
 [-2, 4] covers that with a 0.06 atom spacing (FlashSAC's default [-5, 5] would waste half its atoms).
 """
 
+from flashsac_go1 import RECIPE as GO1_RECIPE  # FlashSAC's recipe; discount, reward scaling and support differ
+
 from unilab_jax.cli import run_experiment
 
-RECIPE = {"actor_hidden": (256, 256, 256), "critic_hidden": (512, 512, 512), "batch_size": 8192,
-          "utd": 2 / 1024, "updates_per_call": 4, "publish_every": 4, "replay_capacity": 2_097_152,
-          "learning_starts": 16_384, "gamma": 0.99, "tau": 0.1, "init_alpha": 0.001, "normalize_rewards": True,
-          "num_atoms": 101, "v_min": -2.0, "v_max": 4.0, "max_grad_norm": 1.0}
+RECIPE = {**GO1_RECIPE, "gamma": 0.99, "normalize_rewards": True, "v_min": -2.0, "v_max": 4.0}
 
 if __name__ == "__main__":
     run_experiment(algo="flashsac", task="go2_joystick_flat", recipe=RECIPE, default_total_steps=100_000_000)

@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from unilab_jax.config import apply_overrides
+from unilab_jax.lazy import load
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,13 +79,60 @@ class Task(abc.ABC):
         """Releases resources (nothing by default)."""
 
 
+def with_reward_scales(scales: Mapping[str, float]) -> Callable[[type], type]:
+    """Class decorator for a frozen task config: a float field ``scale_<term>`` per reward term of ``scales``
+    (``{term: default scale}``, in the task's term order), so a task names each term and its scale once."""
+
+    def decorate(cls: type) -> type:
+        fields = [(f"scale_{term}", float, dataclasses.field(default=float(scale))) for term, scale in scales.items()]
+        out = dataclasses.make_dataclass(cls.__name__, fields, bases=(cls,), frozen=True)
+        out.__module__, out.__qualname__, out.__doc__ = cls.__module__, cls.__qualname__, cls.__doc__
+        return out
+
+    return decorate
+
+
+def reward_scales(config: Any, terms: Sequence[str]) -> dict[str, float]:
+    """``{term: config.scale_<term>}`` for ``terms``."""
+    return {name: float(getattr(config, f"scale_{name}")) for name in terms}
+
+
+class _ByName:
+    """A registered callable held as ``"module:function"`` (plus leading arguments), imported when first
+    called: the registry names the built-in tasks without importing them."""
+
+    def __init__(self, target: str, *args: Any):
+        self.target, self.args = target, args
+        self.__module__ = target.partition(":")[0]
+
+    def __call__(self, *args: Any) -> Any:
+        return load(self.target)(*self.args, *args)
+
+
 @dataclasses.dataclass(frozen=True)
 class _Entry:
     factory: Callable[..., Task]
     default_config: Callable[[], Any]
 
 
-_REGISTRY: dict[str, _Entry] = {}
+def _builtin(module: str) -> _Entry:
+    return _Entry(_ByName(f"{module}:make"), _ByName(f"{module}:default_config"))
+
+
+def _history(base_name: str) -> _Entry:
+    return _Entry(_ByName("tasks.history:make_variant", base_name),
+                  _ByName("tasks.history:variant_default_config", base_name))
+
+
+# Built-in tasks by module path; a task's module is imported when it is first built or configured,
+# so this module imports no task module (and listing the tasks imports none).
+_REGISTRY: dict[str, _Entry] = {
+    "cartpole_balance": _builtin("tasks.cartpole"),
+    "go1_joystick_flat": _builtin("tasks.go1_joystick"),
+    "go2_joystick_flat": _builtin("tasks.go2_joystick"),
+    "g1_walk_flat": _builtin("tasks.g1_walk"),
+    **{f"{name}_hist": _history(name) for name in ("cartpole_balance", "go1_joystick_flat", "go2_joystick_flat")},
+}
 
 
 def register(name: str, factory: Callable[..., Task], default_config: Callable[[], Any]) -> None:
@@ -93,14 +141,12 @@ def register(name: str, factory: Callable[..., Task], default_config: Callable[[
 
 
 def names() -> list[str]:
-    _load_builtin()
     return sorted(_REGISTRY)
 
 
 def _entry(name: str) -> _Entry:
-    _load_builtin()
     if name not in _REGISTRY:
-        raise ValueError(f"unknown task {name!r}; registered tasks: {sorted(_REGISTRY)}")
+        raise ValueError(f"unknown task {name!r}; registered tasks: {names()}")
     return _REGISTRY[name]
 
 
@@ -108,11 +154,9 @@ def default_config(name: str) -> Any:
     return _entry(name).default_config()
 
 
+def make_from_config(name: str, config: Any, num_envs: int, seed: int = 0) -> Task:
+    return _entry(name).factory(config, num_envs, seed)
+
+
 def make(name: str, num_envs: int, seed: int = 0, overrides: Mapping[str, Any] | None = None) -> Task:
-    entry = _entry(name)
-    config = apply_overrides(entry.default_config(), overrides)
-    return entry.factory(config, num_envs, seed)
-
-
-def _load_builtin() -> None:
-    import tasks.builtin  # noqa: F401  (registers the built-in tasks)
+    return make_from_config(name, apply_overrides(default_config(name), overrides), num_envs, seed)

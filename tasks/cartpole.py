@@ -65,7 +65,7 @@ def default_config() -> CartpoleConfig:
 
 
 def reward_scales(config: CartpoleConfig) -> dict[str, float]:
-    return {name: float(getattr(config, f"scale_{name}")) for name in REWARD_TERMS}
+    return base.reward_scales(config, REWARD_TERMS)
 
 
 def build_spec(config: CartpoleConfig) -> mujoco.MjSpec:
@@ -210,6 +210,3 @@ class CartpoleBalance(base.Task):
 
 def make(config: CartpoleConfig, num_envs: int, seed: int) -> CartpoleBalance:
     return CartpoleBalance(config, num_envs, seed)
-
-
-base.register("cartpole_balance", make, default_config)

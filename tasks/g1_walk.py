@@ -49,31 +49,23 @@ single-threaded process pinned to one core, CPU time, on the loaded 2-core dev V
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import mujoco
 import numpy as np
 
 from tasks import base, walking
-from tasks import go1_joystick as go1
 from unilab_jax import xp as shim
 
 FEET = ("left", "right")
 FOOT_BODIES = ("left_ankle_roll_link", "right_ankle_roll_link")
-REWARD_TERMS = (
-    "tracking_lin_vel",
-    "tracking_ang_vel",
-    "lin_vel_z",
-    "ang_vel_xy",
-    "orientation",
-    "base_height",
-    "action_rate",
-    "torques",
-    "feet_contact_phase",
-    "feet_swing_height",
-    "feet_slip",
-    "pose",
-    "termination",
-)
+# Reward terms (in this order) and their default scales; each is the config field ``scale_<term>``.
+REWARD_SCALES = {
+    "tracking_lin_vel": 1.0, "tracking_ang_vel": 0.5, "lin_vel_z": -2.0, "ang_vel_xy": -0.05, "orientation": -2.0,
+    "base_height": -10.0, "action_rate": -0.01, "torques": -2e-4, "feet_contact_phase": 0.2,
+    "feet_swing_height": 0.5, "feet_slip": -0.1, "pose": -0.5, "termination": -20.0,
+}
+REWARD_TERMS = tuple(REWARD_SCALES)
 # Default joint angles by joint name (unlisted joints: 0).
 DEFAULT_POSE = {
     "left_hip_pitch_joint": -0.312, "right_hip_pitch_joint": -0.312,
@@ -94,6 +86,7 @@ def joint_group(name: str) -> str:
     return "wrist" if ("wrist_pitch" in name or "wrist_yaw" in name) else "arm"
 
 
+@base.with_reward_scales(REWARD_SCALES)
 @dataclasses.dataclass(frozen=True)
 class G1WalkConfig(walking.WalkingConfig):
     """Configuration of ``g1_walk_flat`` (override any field by name)."""
@@ -137,19 +130,6 @@ class G1WalkConfig(walking.WalkingConfig):
     pose_weight_ankle_roll: float = 0.5
     pose_weight_waist: float = 1.0
     pose_weight_arm: float = 0.5
-    scale_tracking_lin_vel: float = 1.0
-    scale_tracking_ang_vel: float = 0.5
-    scale_lin_vel_z: float = -2.0
-    scale_ang_vel_xy: float = -0.05
-    scale_orientation: float = -2.0
-    scale_base_height: float = -10.0
-    scale_action_rate: float = -0.01
-    scale_torques: float = -2e-4
-    scale_feet_contact_phase: float = 0.2
-    scale_feet_swing_height: float = 0.5
-    scale_feet_slip: float = -0.1
-    scale_pose: float = -0.5
-    scale_termination: float = -20.0
     dr_floor_friction: tuple[float, float] = (0.4, 1.0)
     dr_mass_scale: tuple[float, float] = (0.9, 1.1)
     dr_torso_com: float = 0.03
@@ -161,19 +141,14 @@ def default_config() -> G1WalkConfig:
 
 def build_spec(config: G1WalkConfig) -> mujoco.MjSpec:
     """Unitree's G1 scene with the task's MjSpec edits (solver, feet-only contacts, servos, sensors)."""
-    spec = go1.load_menagerie_spec("unitree_g1")
-    go1.set_solver(spec, config)
-    for s in list(spec.sensors):
-        spec.delete(s)
-    go1.strip_visuals(spec)
-    feet = [g for b in FOOT_BODIES for g in spec.body(b).geoms if g.type == mujoco.mjtGeom.mjGEOM_SPHERE]
+    spec, feet = walking.robot_spec("unitree_g1", config, lambda spec: [
+        g for b in FOOT_BODIES for g in spec.body(b).geoms if g.type == mujoco.mjtGeom.mjGEOM_SPHERE])
     if len(feet) != 8:
         raise ValueError(f"expected 4 contact spheres under each ankle-roll link, found {len(feet)}")
-    go1.feet_only_contacts(spec, feet)
+    for s in list(spec.sensors):
+        spec.delete(s)
     floor = spec.geom("floor")
     floor.priority, floor.condim = 1, 3
-    for g in feet:
-        g.condim = 3
     c = config
     gains = {"hip": (c.kp_hip, c.kd_hip), "knee": (c.kp_knee, c.kd_knee), "ankle": (c.kp_ankle, c.kd_ankle),
              "waist": (c.kp_waist, c.kd_waist), "arm": (c.kp_arm, c.kd_arm), "wrist": (c.kp_wrist, c.kd_wrist)}
@@ -203,26 +178,8 @@ def pose_weights(config: G1WalkConfig, joint_names) -> np.ndarray:
     return np.array([weight(n) for n in joint_names])
 
 
-def reward_terms(*, command, local_linvel, gyro, gravity, base_z, joint_pos, default_pose, pose_weight, action,
-                 last_act, actuator_force, contact, stance, feet_h, feet_vel, done, tracking_sigma: float,
-                 base_height_target: float, swing_height_target: float, swing_height_sigma: float):
-    """Unscaled reward terms, each [M], in ``REWARD_TERMS`` order."""
-    xp = shim.namespace(joint_pos)
-    return {
-        "tracking_lin_vel": go1.reward_tracking_lin_vel(command, local_linvel, tracking_sigma),
-        "tracking_ang_vel": go1.reward_tracking_ang_vel(command, gyro, tracking_sigma),
-        "lin_vel_z": go1.cost_lin_vel_z(local_linvel),
-        "ang_vel_xy": go1.cost_ang_vel_xy(gyro),
-        "orientation": go1.cost_orientation(gravity),
-        "base_height": walking.cost_base_height(base_z, base_height_target),
-        "action_rate": go1.cost_action_rate(action, last_act),
-        "torques": go1.cost_torques(actuator_force),
-        "feet_contact_phase": walking.reward_contact_phase(contact, stance),
-        "feet_swing_height": walking.reward_swing_height(feet_h, stance, swing_height_target, swing_height_sigma),
-        "feet_slip": go1.cost_feet_slip(command, feet_vel, contact),
-        "pose": walking.cost_pose_l1(joint_pos, default_pose, pose_weight),
-        "termination": xp.astype(done, joint_pos.dtype),
-    }
+# The task's unscaled terms as functions of their inputs (``walking.reward_terms``, tests call it directly).
+reward_terms = functools.partial(walking.reward_terms, REWARD_TERMS)
 
 
 class G1WalkFlat(walking.WalkingTask):
@@ -262,18 +219,6 @@ class G1WalkFlat(walking.WalkingTask):
         xp = shim.namespace(s["base_z"])
         return xp.concat([s["base_z"][:, None], xp.astype(s["contact"], s["base_z"].dtype), s["feet_h"]], axis=1)
 
-    def reward_terms(self, s, action, done):
-        c = self.config
-        return reward_terms(
-            command=s["command"], local_linvel=s["local_linvel"], gyro=s["gyro"], gravity=s["gravity"],
-            base_z=s["base_z"], joint_pos=s["joint_pos"], default_pose=self.default_pose,
-            pose_weight=self.pose_weight, action=action, last_act=s["last_act"],
-            actuator_force=s["actuator_force"], contact=s["contact"], stance=s["stance"], feet_h=s["feet_h"],
-            feet_vel=s["feet_vel"], done=done, tracking_sigma=c.tracking_sigma,
-            base_height_target=c.base_height_target, swing_height_target=c.swing_height_target,
-            swing_height_sigma=c.swing_height_sigma,
-        )
-
     # ---- domain randomisation -----------------------------------------------------------------
     def sample_dr(self) -> dict[str, np.ndarray]:
         c, M, r, nb = self.config, self.num_envs, self._rng, self.model.nbody - 1  # the world has no mass
@@ -296,6 +241,3 @@ class G1WalkFlat(walking.WalkingTask):
 
 def make(config: G1WalkConfig, num_envs: int, seed: int) -> G1WalkFlat:
     return G1WalkFlat(config, num_envs, seed)
-
-
-base.register("g1_walk_flat", make, default_config)

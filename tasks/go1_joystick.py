@@ -74,24 +74,14 @@ from tasks.physics import BatchedSim
 from unilab_jax import xp as shim
 
 FEET = ("FR", "FL", "RR", "RL")
-REWARD_TERMS = (
-    "tracking_lin_vel",
-    "tracking_ang_vel",
-    "lin_vel_z",
-    "ang_vel_xy",
-    "orientation",
-    "stand_still",
-    "termination",
-    "pose",
-    "torques",
-    "action_rate",
-    "energy",
-    "feet_slip",
-    "feet_clearance",
-    "feet_height",
-    "feet_air_time",
-    "dof_pos_limits",
-)
+# Reward terms (in this order) and their default scales; each scale is the config field ``scale_<term>``.
+REWARD_SCALES = {
+    "tracking_lin_vel": 1.0, "tracking_ang_vel": 0.5, "lin_vel_z": -0.5, "ang_vel_xy": -0.05, "orientation": -5.0,
+    "stand_still": -1.0, "termination": -1.0, "pose": 0.5, "torques": -0.0002, "action_rate": -0.01,
+    "energy": -0.001, "feet_slip": -0.1, "feet_clearance": -2.0, "feet_height": -0.2, "feet_air_time": 0.1,
+    "dof_pos_limits": -1.0,
+}
+REWARD_TERMS = tuple(REWARD_SCALES)
 OBS_DIM = 48
 CRITIC_OBS_DIM = OBS_DIM + 3 + 3 + 3 + 3 + 3 + 12 + 12 + 12 + 4 + 12 + 4 + 3 + 1  # 123
 # Playground's flat-terrain "home" keyframe (scene_mjx_feetonly_flat_terrain.xml).
@@ -100,6 +90,7 @@ IMU_POS = (-0.01592, -0.06659, -0.00617)  # Playground's IMU site (Menagerie has
 POSE_WEIGHT = (1.0, 1.0, 0.1) * 4
 
 
+@base.with_reward_scales(REWARD_SCALES)
 @dataclasses.dataclass(frozen=True)
 class Go1JoystickConfig:
     """Configuration of ``go1_joystick_flat`` (Playground defaults; override any field by name)."""
@@ -123,22 +114,6 @@ class Go1JoystickConfig:
     # Reward.
     tracking_sigma: float = 0.25
     max_foot_height: float = 0.1
-    scale_tracking_lin_vel: float = 1.0
-    scale_tracking_ang_vel: float = 0.5
-    scale_lin_vel_z: float = -0.5
-    scale_ang_vel_xy: float = -0.05
-    scale_orientation: float = -5.0
-    scale_stand_still: float = -1.0
-    scale_termination: float = -1.0
-    scale_pose: float = 0.5
-    scale_torques: float = -0.0002
-    scale_action_rate: float = -0.01
-    scale_energy: float = -0.001
-    scale_feet_slip: float = -0.1
-    scale_feet_clearance: float = -2.0
-    scale_feet_height: float = -0.2
-    scale_feet_air_time: float = 0.1
-    scale_dof_pos_limits: float = -1.0
     # Commands (vx, vy, yaw rate).
     command_a: tuple[float, float, float] = (1.5, 0.8, 1.2)
     command_b: tuple[float, float, float] = (0.9, 0.25, 0.5)
@@ -168,7 +143,7 @@ def default_config() -> Go1JoystickConfig:
 
 
 def reward_scales(config: Go1JoystickConfig) -> dict[str, float]:
-    return {name: float(getattr(config, f"scale_{name}")) for name in REWARD_TERMS}
+    return base.reward_scales(config, REWARD_TERMS)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -848,6 +823,3 @@ class Go1JoystickFlat(base.Task):
 
 def make(config: Go1JoystickConfig, num_envs: int, seed: int) -> Go1JoystickFlat:
     return Go1JoystickFlat(config, num_envs, seed)
-
-
-base.register("go1_joystick_flat", make, default_config)

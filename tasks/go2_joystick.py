@@ -65,43 +65,29 @@ Choices where DESIGN.md is silent (documented deviations):
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import mujoco
 import numpy as np
 
 from tasks import base, walking
-from tasks import go1_joystick as go1
-from unilab_jax import xp as shim
 
 FEET = ("FL", "FR", "RL", "RR")  # Menagerie's foot geoms, in actuator (leg) order
-REWARD_TERMS = (
-    "tracking_lin_vel",
-    "tracking_ang_vel",
-    "lin_vel_z",
-    "ang_vel_xy",
-    "base_height",
-    "action_rate",
-    "pose",
-    "feet_contact_phase",
-    "feet_swing_height",
-)
+# Reward terms (in this order) and their default scales (UniLab's); each is the config field ``scale_<term>``.
+REWARD_SCALES = {
+    "tracking_lin_vel": 1.0, "tracking_ang_vel": 0.2, "lin_vel_z": -5.0, "ang_vel_xy": -0.1, "base_height": -20.0,
+    "action_rate": -0.02, "pose": -0.4, "feet_contact_phase": 1.5, "feet_swing_height": 4.0,
+}
+REWARD_TERMS = tuple(REWARD_SCALES)
 
 
+@base.with_reward_scales(REWARD_SCALES)
 @dataclasses.dataclass(frozen=True)
 class Go2JoystickConfig(walking.WalkingConfig):
     """Configuration of ``go2_joystick_flat`` (UniLab's values; override any field by name)."""
 
     kp: float = 35.0
     kd: float = 0.5
-    scale_tracking_lin_vel: float = 1.0
-    scale_tracking_ang_vel: float = 0.2
-    scale_lin_vel_z: float = -5.0
-    scale_ang_vel_xy: float = -0.1
-    scale_base_height: float = -20.0
-    scale_action_rate: float = -0.02
-    scale_pose: float = -0.4
-    scale_feet_contact_phase: float = 1.5
-    scale_feet_swing_height: float = 4.0
     dr_kp_scale: tuple[float, float] = (0.9, 1.1)
     dr_kd_scale: tuple[float, float] = (0.9, 1.1)
     dr_base_mass_delta: float = 1.5
@@ -114,13 +100,7 @@ def default_config() -> Go2JoystickConfig:
 
 def build_spec(config: Go2JoystickConfig) -> mujoco.MjSpec:
     """Menagerie's Go2 scene with the task's MjSpec edits (solver, feet-only contacts, servos, sensors)."""
-    spec = go1.load_menagerie_spec("unitree_go2")
-    go1.set_solver(spec, config)
-    go1.strip_visuals(spec)
-    feet = [spec.geom(f) for f in FEET]
-    go1.feet_only_contacts(spec, feet)
-    for g in feet:
-        g.condim = 3
+    spec, _ = walking.robot_spec("unitree_go2", config, lambda spec: [spec.geom(f) for f in FEET])
     n = len(spec.actuators)
     walking.position_servos(spec, [config.kp] * n, [config.kd] * n)
     G = mujoco.mjtObj.mjOBJ_GEOM
@@ -128,22 +108,8 @@ def build_spec(config: Go2JoystickConfig) -> mujoco.MjSpec:
     return spec
 
 
-def reward_terms(*, command, local_linvel, gyro, base_z, joint_pos, default_pose, action, last_act, contact,
-                 stance, feet_h, tracking_sigma: float, base_height_target: float, swing_height_target: float,
-                 swing_height_sigma: float):
-    """Unscaled reward terms, each [M], in ``REWARD_TERMS`` order."""
-    xp = shim.namespace(joint_pos)
-    return {
-        "tracking_lin_vel": go1.reward_tracking_lin_vel(command, local_linvel, tracking_sigma),
-        "tracking_ang_vel": go1.reward_tracking_ang_vel(command, gyro, tracking_sigma),
-        "lin_vel_z": go1.cost_lin_vel_z(local_linvel),
-        "ang_vel_xy": go1.cost_ang_vel_xy(gyro),
-        "base_height": walking.cost_base_height(base_z, base_height_target),
-        "action_rate": go1.cost_action_rate(action, last_act),
-        "pose": walking.cost_pose_l1(joint_pos, default_pose, xp.ones_like(default_pose)),
-        "feet_contact_phase": walking.reward_contact_phase(contact, stance),
-        "feet_swing_height": walking.reward_swing_height(feet_h, stance, swing_height_target, swing_height_sigma),
-    }
+# The task's unscaled terms as functions of their inputs (``walking.reward_terms``, tests call it directly).
+reward_terms = functools.partial(walking.reward_terms, REWARD_TERMS)
 
 
 class Go2JoystickFlat(walking.WalkingTask):
@@ -162,16 +128,6 @@ class Go2JoystickFlat(walking.WalkingTask):
 
     def sole_offsets(self, model: mujoco.MjModel) -> np.ndarray:
         return model.geom_size[self.foot_geoms(model), 0]  # foot sphere radius
-
-    def reward_terms(self, s, action, done):
-        c = self.config
-        return reward_terms(
-            command=s["command"], local_linvel=s["local_linvel"], gyro=s["gyro"], base_z=s["base_z"],
-            joint_pos=s["joint_pos"], default_pose=self.default_pose, action=action, last_act=s["last_act"],
-            contact=s["contact"], stance=s["stance"], feet_h=s["feet_h"], tracking_sigma=c.tracking_sigma,
-            base_height_target=c.base_height_target, swing_height_target=c.swing_height_target,
-            swing_height_sigma=c.swing_height_sigma,
-        )
 
     # ---- domain randomisation -----------------------------------------------------------------
     def sample_dr(self) -> dict[str, np.ndarray]:
@@ -199,6 +155,3 @@ class Go2JoystickFlat(walking.WalkingTask):
 
 def make(config: Go2JoystickConfig, num_envs: int, seed: int) -> Go2JoystickFlat:
     return Go2JoystickFlat(config, num_envs, seed)
-
-
-base.register("go2_joystick_flat", make, default_config)

@@ -34,6 +34,7 @@ their own. Storage grows with ``H``: obs and next_obs each hold ``H * d + p`` fl
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import numpy as np
@@ -130,12 +131,11 @@ class HistoryTask(base.Task):
         self.inner.close()
 
 
-def register_variant(base_name: str) -> str:
-    """Registers ``<base_name>_hist`` (its config = the base task's fields plus ``history_len`` (1),
-    ``history_extrinsics`` (True), ``history_actions`` (False) and ``history_exclude`` (no columns));
-    returns the new name."""
-    entry = base._entry(base_name)  # loads the built-in tasks first
-    base_cls = type(entry.default_config())
+@functools.cache
+def variant_config_class(base_name: str) -> type:
+    """The config of ``<base_name>_hist``: the base task's fields plus ``history_len`` (1),
+    ``history_extrinsics`` (True), ``history_actions`` (False) and ``history_exclude`` (no columns)."""
+    base_cls = type(base.default_config(base_name))
     config_cls = dataclasses.make_dataclass(
         base_cls.__name__ + "History",
         [("history_len", int, dataclasses.field(default=1)),
@@ -144,18 +144,25 @@ def register_variant(base_name: str) -> str:
          ("history_exclude", tuple[int, ...], dataclasses.field(default=()))],
         bases=(base_cls,), frozen=True)
     config_cls.__doc__ = f"``{base_name}`` fields plus the history options (see tasks/history.py)."
+    return config_cls
+
+
+def variant_default_config(base_name: str) -> Any:
+    """``<base_name>_hist``'s default config (the base task's defaults, no history options changed)."""
+    return variant_config_class(base_name)(**dataclasses.asdict(base.default_config(base_name)))
+
+
+def make_variant(base_name: str, config: Any, num_envs: int, seed: int) -> HistoryTask:
+    """``<base_name>_hist``'s factory: the base task built from its own fields of ``config``, wrapped."""
+    base_cls = type(base.default_config(base_name))
+    inner_config = base_cls(**{f.name: getattr(config, f.name) for f in dataclasses.fields(base_cls)})
+    return HistoryTask(base.make_from_config(base_name, inner_config, num_envs, seed), config, base_name + SUFFIX)
+
+
+def register_variant(base_name: str) -> str:
+    """Registers ``<base_name>_hist`` for any registered task; returns the new name. (The built-in
+    variants are in ``tasks.base``'s table, which reaches the two functions above by name.)"""
     name = base_name + SUFFIX
-
-    def default_config() -> Any:
-        return config_cls(**dataclasses.asdict(entry.default_config()))
-
-    def make(config: Any, num_envs: int, seed: int) -> HistoryTask:
-        inner_config = base_cls(**{f.name: getattr(config, f.name) for f in dataclasses.fields(base_cls)})
-        return HistoryTask(entry.factory(inner_config, num_envs, seed), config, name)
-
-    base.register(name, make, default_config)
+    base.register(name, functools.partial(make_variant, base_name),
+                  functools.partial(variant_default_config, base_name))
     return name
-
-
-for _name in ("cartpole_balance", "go1_joystick_flat", "go2_joystick_flat"):
-    register_variant(_name)

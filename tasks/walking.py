@@ -81,13 +81,23 @@ class WalkingConfig:
     sensors_every_substep: bool = False
 
 
-def reward_scales(config: Any, terms: Sequence[str]) -> dict[str, float]:
-    return {name: float(getattr(config, f"scale_{name}")) for name in terms}
-
-
 # --------------------------------------------------------------------------------------------------
 # Model helpers (MjSpec edits)
 # --------------------------------------------------------------------------------------------------
+def robot_spec(robot: str, config: Any, find_feet: Callable[[mujoco.MjSpec], list]) -> tuple[mujoco.MjSpec, list]:
+    """A Menagerie robot's scene with the edits every walking task makes: the config's solver, no visual-only
+    assets, and contacts between the feet (``find_feet(spec)``, once the visuals are gone) and the floor
+    only, with condim 3 on the feet. Returns (spec, feet)."""
+    spec = go1.load_menagerie_spec(robot)
+    go1.set_solver(spec, config)
+    go1.strip_visuals(spec)
+    feet = find_feet(spec)
+    go1.feet_only_contacts(spec, feet)
+    for g in feet:
+        g.condim = 3
+    return spec, feet
+
+
 def position_servos(spec: mujoco.MjSpec, kp: Sequence[float], kd: Sequence[float]) -> np.ndarray:
     """Turns the robot's torque motors into PD position servos; returns their torque limits [nu].
 
@@ -194,6 +204,32 @@ def reward_swing_height(feet_h, stance, target: float, sigma: float):
     return xp.sum(k * xp.astype(~stance, k.dtype), axis=-1)
 
 
+def reward_terms(names: Sequence[str], *, command, local_linvel, gyro, base_z, joint_pos, default_pose, action,
+                 last_act, contact, stance, feet_h, tracking_sigma: float, base_height_target: float,
+                 swing_height_target: float, swing_height_sigma: float, pose_weight=None, gravity=None,
+                 actuator_force=None, feet_vel=None, done=None):
+    """The walking tasks' unscaled reward terms ``names``, each [M], in that order (a task asks only for
+    terms whose inputs it passes). ``pose_weight`` None: every joint weighs 1."""
+    xp = shim.namespace(joint_pos)
+    terms = {
+        "tracking_lin_vel": lambda: go1.reward_tracking_lin_vel(command, local_linvel, tracking_sigma),
+        "tracking_ang_vel": lambda: go1.reward_tracking_ang_vel(command, gyro, tracking_sigma),
+        "lin_vel_z": lambda: go1.cost_lin_vel_z(local_linvel),
+        "ang_vel_xy": lambda: go1.cost_ang_vel_xy(gyro),
+        "orientation": lambda: go1.cost_orientation(gravity),
+        "base_height": lambda: cost_base_height(base_z, base_height_target),
+        "action_rate": lambda: go1.cost_action_rate(action, last_act),
+        "torques": lambda: go1.cost_torques(actuator_force),
+        "feet_contact_phase": lambda: reward_contact_phase(contact, stance),
+        "feet_swing_height": lambda: reward_swing_height(feet_h, stance, swing_height_target, swing_height_sigma),
+        "feet_slip": lambda: go1.cost_feet_slip(command, feet_vel, contact),
+        "pose": lambda: cost_pose_l1(joint_pos, default_pose,
+                                     xp.ones_like(default_pose) if pose_weight is None else pose_weight),
+        "termination": lambda: xp.astype(done, joint_pos.dtype),
+    }
+    return {name: terms[name]() for name in names}
+
+
 def terminated(gravity, base_z, max_tilt_deg: float, min_base_height: float):
     """[M] bool: tilt (angle between body z and world z) above ``max_tilt_deg``, or base below the minimum.
 
@@ -284,13 +320,14 @@ class WalkingTask(base.Task):
     ``home_qpos(model) -> [nq]`` (reset pose; its actuated joints are the default pose);
     ``foot_geoms(model)`` (sphere geoms for the standing height) and ``sole_offsets(model) [F]`` (foot
     sensor height above the sole); ``policy_actuators(model)`` (indices the action drives; the rest hold
-    their default); ``reward_terms(s, a, done) -> {name: [M]}``; ``critic_extra(s)``; ``sample_dr()`` and
-    ``randomize_model(model, i)`` for domain randomisation.
+    their default); the ``REWARD_TERMS`` come from ``walking.reward_terms`` (weighted by ``pose_weight``);
+    ``critic_extra(s)``; ``sample_dr()`` and ``randomize_model(model, i)`` for domain randomisation.
     """
 
     NAME: str = ""
     REWARD_TERMS: tuple[str, ...] = ()
     FEET: tuple[str, ...] = ()
+    pose_weight: Any = None  # [n] per-joint weights of the pose term (None: 1 each)
 
     def __init__(self, config: WalkingConfig, num_envs: int, seed: int):
         super().__init__(config, num_envs, seed)
@@ -324,7 +361,7 @@ class WalkingTask(base.Task):
             [np.full(3, c.noise_gyro), np.full(3, c.noise_gravity), np.full(n, c.noise_joint_pos),
              np.full(n, c.noise_joint_vel)]
         )
-        self.scales = reward_scales(c, self.REWARD_TERMS)
+        self.scales = base.reward_scales(c, self.REWARD_TERMS)
         self._cmd_low, self._cmd_high = np.array(c.command_low), np.array(c.command_high)
         self._push_every = round(c.push_interval_s / self.dt) if c.push_interval_s > 0 else 0
         # Domain randomisation: per-env parameters (self.dr, flattened in self.extrinsics) and models.
@@ -374,8 +411,16 @@ class WalkingTask(base.Task):
     def reward_terms(self, s: Mapping[str, Any], action: Any, done: Any) -> dict[str, Any]:
         """Unscaled terms {name: [M]} in ``REWARD_TERMS`` order from ``s`` (``read_sensors`` plus ``command``
         and ``last_act``, the previous action). Shim-written and reading nothing per-env from ``self`` (only
-        constants: config, default pose, weights), so the MJX variant calls it on jax arrays."""
-        raise NotImplementedError
+        constants: config, default pose, ``pose_weight``), so the MJX variant calls it on jax arrays."""
+        c = self.config
+        return reward_terms(
+            self.REWARD_TERMS, command=s["command"], local_linvel=s["local_linvel"], gyro=s["gyro"],
+            base_z=s["base_z"], joint_pos=s["joint_pos"], default_pose=self.default_pose, action=action,
+            last_act=s["last_act"], contact=s["contact"], stance=s["stance"], feet_h=s["feet_h"],
+            tracking_sigma=c.tracking_sigma, base_height_target=c.base_height_target,
+            swing_height_target=c.swing_height_target, swing_height_sigma=c.swing_height_sigma,
+            pose_weight=self.pose_weight, gravity=s["gravity"], actuator_force=s.get("actuator_force"),
+            feet_vel=s.get("feet_vel"), done=done)
 
     def critic_extra(self, s: Mapping[str, Any]) -> Any:
         """[M, k] privileged signals appended to the critic observation after the local linear velocity

@@ -11,7 +11,9 @@ import pytest
 import tasks
 from unilab_jax import algos, nets
 from unilab_jax import xp as shim
-from unilab_jax.algos import him_ppo, hora_student, hora_teacher
+from unilab_jax.algos.hora import student as hora_student
+from unilab_jax.algos.hora import teacher as hora_teacher
+from unilab_jax.algos.ppo import him_ppo
 from unilab_jax.config import apply_overrides
 from unilab_jax.hora_cli import evaluate_policy
 from unilab_jax.trainer import RunConfig, Trainer
@@ -59,7 +61,7 @@ def test_hora_student_recovers_the_latent_and_the_teachers_return(tmp_path):
     assert z[-5:].mean() < 0.8 * var[-5:].mean(), (z, var)
     # Same envs and seeds for both: the student (no privileged input) keeps >= 85% of the teacher's return.
     spec = tasks.make("cartpole_balance_hist", 1, overrides=student_task).spec
-    from unilab_jax.algos.hora_jax import StudentLearner, load_teacher
+    from unilab_jax.algos.hora.learner_jax import StudentLearner, load_teacher
     from unilab_jax.checkpoint import Checkpointer
 
     learner = StudentLearner(apply_overrides(hora_student.Config(), {"teacher_checkpoint": ckpts}), spec)
@@ -111,7 +113,7 @@ def _small_him(spec_overrides=None):
 
 
 def test_him_gradients_stay_in_their_part():
-    from unilab_jax.algos import ppo
+    from unilab_jax.algos.ppo import ppo
     from unilab_jax.core import normalizer
 
     spec, cfg = _small_him()
@@ -140,7 +142,7 @@ def test_teacher_reads_the_last_frame_whatever_the_history_length():
     xp = shim.get("numpy")
     spec1 = tasks.make("cartpole_balance_hist", 1, overrides={**DR_TASK, "history_len": 1}).spec
     cfg = apply_overrides(hora_teacher.Config(), {"actor_hidden": (8,), "critic_hidden": (8,), "encoder_hidden": (8,)})
-    from unilab_jax.algos import ppo
+    from unilab_jax.algos.ppo import ppo
     from unilab_jax.core import normalizer
 
     rng = np.random.default_rng(0)

@@ -121,8 +121,8 @@ def _compare(plan: dict[str, Any]) -> dict[str, Any]:
 
     from unilab_jax import nets
     from unilab_jax import xp as shim
-    from unilab_jax.algos import hora_teacher
-    from unilab_jax.algos.hora_jax import StudentLearner, load_teacher
+    from unilab_jax.algos.hora import teacher as hora_teacher
+    from unilab_jax.algos.hora.learner_jax import StudentLearner, load_teacher
     from unilab_jax.checkpoint import Checkpointer
     from unilab_jax.metrics import MetricLogger
 

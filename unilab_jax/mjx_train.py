@@ -6,7 +6,7 @@ only the placement of the simulation differs from the heterogeneous runtime:
 * the environment is the MJX variant of the CPU task (``tasks/mjx_go1.py`` for Go1, ``tasks/mjx_walking.py``
   for Go2 / G1: same model, observation, reward, resets and domain randomisation, float32);
 * the algorithms are the same modules: ``act`` (shim-written, here on jax arrays), the networks, and
-  the jitted learner updates of ``algos/ppo_jax.py`` and ``algos/offpolicy_jax.py`` (their ``_update``
+  the jitted learner updates of ``algos/ppo/learner_jax.py`` and ``algos/offpolicy/learner_jax.py`` (their ``_update``
   is traced into the training step below);
 * **PPO**: one ``jax.jit`` call runs ``iterations_per_call`` iterations, each a ``lax.scan`` of
   ``horizon`` control steps of all ``num_envs`` envs (policy + ``nsub`` MJX substeps + auto-reset)
@@ -46,7 +46,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from unilab_jax.algos import REPLAY_FIELDS, TRAJECTORY_FIELDS
+from unilab_jax import algos
+from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import MetricLogger
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.trainer import LearnerThread, stop_on_signals, wait_result
@@ -158,7 +159,7 @@ class MjxTrainer:
         self.envs = make_env(run.task, run.num_envs, task_overrides, compiler_options)
         self.eval_env = make_env(run.task, run.eval_envs, task_overrides, compiler_options)
         self.spec = self.envs.env.spec
-        self.learner = algo_module.make_learner("jax", algo_config, self.spec)
+        self.learner = algos.make_learner(algo_module, "jax", algo_config, self.spec)
         self.logger = MetricLogger(run.logdir)
         self._stop = threading.Event()
         zeros = jnp.zeros((run.eval_envs, self.spec.action_dim), jnp.float32)
@@ -289,7 +290,7 @@ class MjxTrainer:
 # PPO
 # --------------------------------------------------------------------------------------------------
 class PPOMjxTrainer(MjxTrainer):
-    """PPO (``algos.ppo``) with rollouts of ``config.horizon`` steps of ``num_envs`` MJX envs."""
+    """PPO (``algos/ppo``) with rollouts of ``config.horizon`` steps of ``num_envs`` MJX envs."""
 
     def init_carry(self, key: jax.Array) -> tuple:
         k_learner, k_env, k_roll = jax.random.split(key, 3)

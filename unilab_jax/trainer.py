@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from unilab_jax import nets
-from unilab_jax.algos import REPLAY_FIELDS, TRAJECTORY_FIELDS
+from unilab_jax import algos, nets
+from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.xp import tree_leaves
@@ -97,7 +97,7 @@ class Trainer:
         self.spec = probe.spec
         probe.close()
         self.xp = _learner_platform(run.platform)
-        self.learner = algo_module.make_learner(run.platform, algo_config, self.spec)
+        self.learner = algos.make_learner(algo_module, run.platform, algo_config, self.spec)
         self.logger = MetricLogger(run.logdir)
         self.ckpt_dir = os.path.join(os.path.abspath(run.logdir), "checkpoints")
         self._stop = threading.Event()

@@ -17,7 +17,8 @@ jnp = jax.numpy
 
 from tasks.base import TaskSpec  # noqa: E402
 from unilab_jax import algos, nets  # noqa: E402
-from unilab_jax.algos import flashsac, offpolicy_jax  # noqa: E402
+from unilab_jax.algos.offpolicy import flashsac  # noqa: E402
+from unilab_jax.algos.offpolicy import learner_jax as offpolicy_jax  # noqa: E402
 
 FAST_COMPILE = {"xla_backend_optimization_level": 0}
 OBS, A, B = 4, 2, 128

@@ -14,7 +14,7 @@ import pytest
 
 from unilab_jax import algos
 from unilab_jax import xp as shim
-from unilab_jax.algos import fastsac, flashsac, sac, td3
+from unilab_jax.algos.offpolicy import fastsac, flashsac, sac, td3
 from unilab_jax.core import normalizer
 
 NP = shim.get("numpy")

@@ -3,7 +3,7 @@ same batch, same noise, one update of U gradient steps on both, same state out.
 
 The JAX state is warmed up by one update first (non-trivial Adam moments, normalizer and reward
 statistics, a TD3 step counter off the delay phase), converted leaf by leaf with
-``unilab_mlx.offpolicy.state_from_numpy``, and the standard-normal draws the JAX update makes from
+``learner_mlx.state_from_numpy``, and the standard-normal draws the JAX update makes from
 its key (re-derived here with the same ``jax.random`` calls as ``offpolicy_jax``) are injected into
 the MLX update through ``noise=``. Negative controls (other noise; the update itself) show the
 comparison can fail.
@@ -22,9 +22,9 @@ import pytest
 mx = pytest.importorskip("mlx.core")
 
 from tasks.base import TaskSpec  # noqa: E402
-from unilab_jax.algos import fastsac, flashsac, sac, td3  # noqa: E402
+from unilab_jax.algos.offpolicy import fastsac, flashsac, sac, td3  # noqa: E402
+from unilab_jax.algos.offpolicy import learner_mlx as mlx_off  # noqa: E402
 from unilab_jax.xp import tree_paths  # noqa: E402
-from unilab_mlx import offpolicy as mlx_off  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SPEC = TaskSpec(name="t", obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
@@ -94,7 +94,7 @@ def _jax_noise(key, is_td3: bool) -> dict[str, np.ndarray]:
 
 
 def _learners(name: str):
-    from unilab_jax.algos import offpolicy_jax
+    from unilab_jax.algos.offpolicy import learner_jax as offpolicy_jax
 
     module, config = _config(name)
     opts = {"xla_backend_optimization_level": 0}
@@ -177,7 +177,7 @@ sys.modules['optax'] = None
 import mlx.core as mx
 import numpy as np
 from tasks.base import TaskSpec
-from unilab_jax.algos import fastsac, flashsac, sac, td3
+from unilab_jax.algos.offpolicy import fastsac, flashsac, sac, td3
 spec = TaskSpec(name='t', obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
                 reward_terms=('r',))
 rng = np.random.default_rng(0)

@@ -3,7 +3,7 @@ update on both, same parameters / optimizer state / normalizer / learning rate /
 
 The JAX state is warmed up by one update first (non-trivial Adam moments, adapted learning rate,
 normalizer statistics that the loss actually uses), converted leaf by leaf with
-``unilab_mlx.ppo.state_from_numpy``, and the JAX epoch permutations (drawn from the JAX state's
+``learner_mlx.state_from_numpy``, and the JAX epoch permutations (drawn from the JAX state's
 key exactly as ``ppo_jax`` does) are injected into the MLX update through ``perms=``. A negative
 control (the same update with other permutations) shows the comparison can fail.
 """
@@ -22,10 +22,10 @@ mx = pytest.importorskip("mlx.core")
 
 from tasks.base import TaskSpec  # noqa: E402
 from unilab_jax import nets  # noqa: E402
-from unilab_jax.algos import appo, ppo  # noqa: E402
+from unilab_jax.algos.ppo import appo, ppo  # noqa: E402
+from unilab_jax.algos.ppo import learner_mlx as mlx_ppo  # noqa: E402
 from unilab_jax.core import distributions  # noqa: E402
 from unilab_jax.xp import tree_paths  # noqa: E402
-from unilab_mlx import ppo as mlx_ppo  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SPEC = TaskSpec(name="t", obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
@@ -84,7 +84,7 @@ def _setup(use_vtrace: bool, config: ppo.PPOConfig):
     jax = pytest.importorskip("jax")
     import jax.numpy as jnp
 
-    from unilab_jax.algos.ppo_jax import Learner as JaxLearner
+    from unilab_jax.algos.ppo.learner_jax import Learner as JaxLearner
 
     jl = JaxLearner(config, SPEC, use_vtrace=use_vtrace)
     ml = mlx_ppo.Learner(config, SPEC, use_vtrace=use_vtrace)
@@ -215,7 +215,7 @@ sys.modules['optax'] = None
 import mlx.core as mx
 import numpy as np
 from tasks.base import TaskSpec
-from unilab_jax.algos import appo, ppo
+from unilab_jax.algos.ppo import appo, ppo
 spec = TaskSpec(name='t', obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
                 reward_terms=('r',))
 cfg = ppo.PPOConfig(actor_hidden=(16,), critic_hidden=(16,), num_epochs=2, num_minibatches=2)

@@ -114,14 +114,20 @@ def _pad8(n: int) -> int:
     return -(-n // 8) * 8
 
 
+@dataclasses.dataclass(frozen=True)
+class _BufferHandle:
+    """What every buffer's handle (the picklable description a worker attaches with) starts with."""
+
+    fields: tuple[tuple[str, tuple[int, ...], str], ...]
+    num_workers: int
+    envs_per_worker: int
+
+
 # ---------------------------------------------------------------------------------------------
 # Trajectory slots
 # ---------------------------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
-class TrajectoryBufferHandle:
-    fields: tuple[tuple[str, tuple[int, ...], str], ...]
-    num_workers: int
-    envs_per_worker: int
+class TrajectoryBufferHandle(_BufferHandle):
     horizon: int
     slots_per_worker: int
     data: tuple[ShmHandle, ...]
@@ -310,10 +316,7 @@ class TrajectoryBuffer:
 # Replay rings
 # ---------------------------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
-class ReplayBufferHandle:
-    fields: tuple[tuple[str, tuple[int, ...], str], ...]
-    num_workers: int
-    envs_per_worker: int
+class ReplayBufferHandle(_BufferHandle):
     capacity: int
     data: ShmHandle
     control: ShmHandle

@@ -3,7 +3,7 @@
 ::
 
     pool = WorkerPool("cartpole_balance", {}, num_workers=4, envs_per_worker=64, seed=0,
-                      algo_module="unilab_jax.algos.ppo", weight_template=weights, horizon=24)
+                      algo_module="unilab_jax.algos.ppo.ppo", weight_template=weights, horizon=24)
     pool.start()
     pool.publish(weights, version=0)
     for it in range(...):

@@ -1,0 +1,174 @@
+"""What the JAX and MLX off-policy learners share, written once against the shim.
+
+``learner_jax`` and ``learner_mlx`` differ only in how they drive the gradient steps (``lax.scan`` in
+one jit; a compiled step in a Python loop) and in their optimizer library (optax; ``unilab_mlx.optim``,
+which has optax's names and state layout). Everything else is here: the optimizer choice, network
+initialisation on numpy, the batch fields, the once-per-call normalizer step, the initial states,
+the published weights and the metric averaging.
+"""
+
+from __future__ import annotations
+
+import math
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from unilab_jax import nets
+from unilab_jax import xp as shim
+from unilab_jax.algos.offpolicy import sac, td3
+from unilab_jax.algos.offpolicy.sac import Norms, SACState
+from unilab_jax.algos.offpolicy.td3 import TD3State
+from unilab_jax.core import normalizer
+from unilab_jax.fields import REPLAY_FIELDS as BATCH_FIELDS
+
+NP = shim.get("numpy")
+
+
+def make_optimizer(opt: ModuleType, learning_rate: float, weight_decay: float = 0.0,
+                   max_grad_norm: float = 0.0) -> Any:
+    """Adam (AdamW when ``weight_decay`` > 0), after global-norm clipping when ``max_grad_norm`` > 0;
+    ``opt`` is optax or ``unilab_mlx.optim``."""
+    parts = []
+    if max_grad_norm > 0:
+        parts.append(opt.clip_by_global_norm(max_grad_norm))
+    parts.append(opt.adamw(learning_rate, weight_decay=weight_decay) if weight_decay > 0
+                 else opt.adam(learning_rate))
+    return opt.chain(*parts)
+
+
+def init_on_numpy(init_params: Any, key_words: np.ndarray, xp: shim.Backend, *args: Any,
+                  targets: tuple[str, ...] = ()) -> dict:
+    """Runs ``init_params(np_key, *args, xp=numpy)`` and moves the result to ``xp``, adding an
+    independent copy ``target_<name>`` of each network named in ``targets``.
+
+    ``key_words``: the platform key's uint32 words; the numpy key is the first two, so both platforms
+    initialise the same parameters bit for bit. Network initialisation is hundreds of small random
+    ops: eagerly in jax each compiles on first use (seconds at start-up), in numpy they are instant.
+    """
+    np_key = np.asarray(key_words, dtype=np.uint32).reshape(-1)[:2]
+    params = init_params(np_key, *args, xp=NP)
+    params.update({f"target_{name}": params[name] for name in targets})
+    return {k: nets.convert(v, xp) for k, v in params.items()}  # separate buffers per entry
+
+
+def prepare_batch(batch: dict) -> dict:
+    """The fields the update reads, rewards/flags as float32 (bool flags accepted)."""
+    out = {k: batch[k] for k in BATCH_FIELDS}
+    xp = shim.namespace(out["reward"])
+    for k in ("reward", "terminated", "truncated"):
+        out[k] = xp.astype(out[k], xp.float32)
+    return out
+
+
+def update_obs_stats(obs_norm: normalizer.RunningStats, critic_norm: normalizer.RunningStats, batch: dict,
+                     enabled: bool) -> tuple[normalizer.RunningStats, normalizer.RunningStats]:
+    """Normalizer statistics moved once per call, by the first of the U minibatches."""
+    if not enabled:
+        return obs_norm, critic_norm
+    return (normalizer.stats_update(obs_norm, batch["obs"][0]),
+            normalizer.stats_update(critic_norm, batch["critic_obs"][0]))
+
+
+def mean_metrics(stacked: dict) -> dict:
+    """Per-step metrics stacked to ``[U]`` -> their means."""
+    return {k: shim.namespace(v).mean(v) for k, v in stacked.items()}
+
+
+def td3_metrics(stacked: dict) -> dict:
+    """TD3's per-call metrics from ``[U]`` stacks: means, with the actor loss averaged over the steps
+    that updated the actor (0 when none did in this call) and their count."""
+    stacked = dict(stacked)
+    xp = shim.namespace(stacked["actor_steps"])
+    actor_steps = xp.sum(stacked.pop("actor_steps"))
+    actor_loss_sum = xp.sum(stacked.pop("actor_loss_sum"))
+    metrics = mean_metrics(stacked)
+    metrics["actor_loss"] = actor_loss_sum / xp.maximum(actor_steps, 1.0)
+    metrics["actor_steps"] = actor_steps
+    return metrics
+
+
+class SACFamilyBase:
+    """The platform-independent half of the SAC-family learners (``algo`` is the algorithm module,
+    which provides ``init_params``, ``critic_loss``, ``actor_loss``, ``temperature_loss`` and optionally
+    ``project_params`` and ``reward_scale``)."""
+
+    def __init__(self, algo: ModuleType, config: Any, spec: Any, opt: ModuleType, xp: shim.Backend):
+        self.algo, self.config, self.spec, self.xp = algo, config, spec, xp
+        self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
+        self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
+        self.alpha_tx = opt.adam(config.alpha_learning_rate)
+        self.target_entropy = float(config.target_entropy_per_dim * spec.action_dim)
+        self._project = getattr(algo, "project_params", None)
+        self._reward_scale = getattr(algo, "reward_scale", None)
+        self.trace_count = 0  # traces of the compiled update / step (tests assert no retracing)
+
+    def init_params(self, key_words: np.ndarray) -> dict:
+        s = self.spec
+        return init_on_numpy(self.algo.init_params, key_words, self.xp, s.obs_dim, s.critic_obs_dim, s.action_dim,
+                             self.config, targets=("critic",))
+
+    def initial_state(self, params: dict, k_state: Any) -> SACState:
+        s, xp = self.spec, self.xp
+        log_alpha = xp.full((), math.log(self.config.init_alpha), dtype=xp.float32)
+        return SACState(
+            actor=params["actor"], critic=params["critic"], target_critic=params["target_critic"],
+            actor_opt=self.actor_tx.init(params["actor"]), critic_opt=self.critic_tx.init(params["critic"]),
+            log_alpha=log_alpha, alpha_opt=self.alpha_tx.init(log_alpha),
+            obs_norm=normalizer.stats_init(s.obs_dim, xp), critic_norm=normalizer.stats_init(s.critic_obs_dim, xp),
+            reward_norm=normalizer.stats_init(1, xp), key=k_state, steps=xp.zeros((), dtype=xp.int32))
+
+    @staticmethod
+    def weights(state: SACState) -> dict:
+        return sac.policy_weights(state.actor, state.obs_norm)
+
+    def reward_scale(self, state: SACState) -> Any:
+        if self._reward_scale is None:
+            return self.xp.ones((), dtype=self.xp.float32)
+        return self._reward_scale(state.reward_norm, self.config)
+
+    def normalize(self, state: SACState, batch: dict) -> tuple[SACState, Norms]:
+        """The call's normalizer step (observations, and rewards where the algorithm scales them) and
+        the norms every gradient step of the call uses."""
+        obs_norm, critic_norm = update_obs_stats(state.obs_norm, state.critic_norm, batch, self.config.normalize_obs)
+        reward_norm = state.reward_norm
+        if self._reward_scale is not None:
+            reward_norm = normalizer.stats_update(reward_norm, batch["reward"][0][:, None])
+        state = state._replace(obs_norm=obs_norm, critic_norm=critic_norm, reward_norm=reward_norm)
+        return state, Norms(obs_norm, critic_norm, self.xp.astype(self.reward_scale(state), self.xp.float32))
+
+
+class TD3Base:
+    """The platform-independent half of the TD3 learners: delayed actor and target updates every
+    ``policy_delay`` gradient steps."""
+
+    def __init__(self, config: Any, spec: Any, opt: ModuleType, xp: shim.Backend):
+        self.config, self.spec, self.xp = config, spec, xp
+        self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
+        self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
+        self.trace_count = 0
+
+    def init_params(self, key_words: np.ndarray) -> dict:
+        s = self.spec
+        return init_on_numpy(td3.init_params, key_words, self.xp, s.obs_dim, s.critic_obs_dim, s.action_dim,
+                             self.config, targets=("actor", "critic"))
+
+    def initial_state(self, params: dict, k_state: Any) -> TD3State:
+        s, xp = self.spec, self.xp
+        return TD3State(
+            actor=params["actor"], critic=params["critic"], target_actor=params["target_actor"],
+            target_critic=params["target_critic"], actor_opt=self.actor_tx.init(params["actor"]),
+            critic_opt=self.critic_tx.init(params["critic"]),
+            obs_norm=normalizer.stats_init(s.obs_dim, xp), critic_norm=normalizer.stats_init(s.critic_obs_dim, xp),
+            explore_std=xp.asarray(self.config.explore_std, dtype=xp.float32), key=k_state,
+            steps=xp.zeros((), dtype=xp.int32))
+
+    @staticmethod
+    def weights(state: TD3State) -> dict:
+        return {"actor": state.actor, "obs_norm": state.obs_norm, "explore_std": state.explore_std}
+
+    def normalize(self, state: TD3State, batch: dict) -> tuple[TD3State, Norms]:
+        obs_norm, critic_norm = update_obs_stats(state.obs_norm, state.critic_norm, batch, self.config.normalize_obs)
+        return (state._replace(obs_norm=obs_norm, critic_norm=critic_norm),
+                Norms(obs_norm, critic_norm, self.xp.ones((), dtype=self.xp.float32)))

@@ -1,0 +1,256 @@
+"""MLX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, TD3), the same math as
+``learner_jax`` (what does not depend on the platform is ``learner_common``'s, shared with it).
+
+``SACFamilyLearner(algo, config, spec)`` and ``TD3Learner(config, spec)`` expose the JAX learners'
+interface::
+
+    learner = SACFamilyLearner(sac, config, spec)
+    state = learner.init(mx.random.key(0))          # SACState of mx arrays
+    state, metrics = learner.update(state, batch)    # batch: dict of arrays [U, B, ...]; {} is a no-op
+    weights = SACFamilyLearner.weights(state)
+
+The losses are the algorithm modules' shim-written functions run on mlx arrays (``critic_loss``,
+``actor_loss``, ``temperature_loss``, optional ``project_params`` and ``reward_scale``); the
+optimizers are ``unilab_mlx.optim``'s optax twins built by the same ``learner_common.make_optimizer``
+(``chain([clip_by_global_norm,] adam | adamw)``), so optimizer states have the same layout (dicts and
+tuples instead of optax NamedTuples) and :func:`state_from_numpy` moves a JAX state here by name.
+
+Network initialisation runs on numpy from the key's two uint32 words, as the JAX learner does, so
+``init`` with the same key value gives the JAX learner's parameters bit for bit.
+
+Compile boundaries. The JAX learner scans the U gradient steps inside one jit. MLX has no scan, so
+here ONE gradient step is a compiled pure function of explicit state
+``(nets, opt states, log_alpha, ...), norms, minibatch, noise -> (new nets/opt states, metrics)``,
+traced once and reused; a Python loop drives it with exactly one ``mx.eval`` per step. As in JAX,
+the normalizer statistics (and FlashSAC's reward statistics) move once per call from the first of
+the U minibatches before the gradient steps. TD3's delayed actor/target step is decided in Python
+from the step counter (read once per call): two compiled variants, critic-only and critic+actor,
+replace ``lax.cond``.
+
+Randomness: the state's key is split into ``U + 1`` keys exactly as in JAX (the first becomes the
+next state's key); SAC-family step ``i`` splits ``keys[i + 1]`` into ``(k_next, k_pi)`` and draws
+``eps_next``/``eps`` ~ N(0, 1) of the action's shape; TD3 draws ``eps_next`` from ``keys[i + 1]``.
+MLX's normal draws differ from JAX's for the same key, so parity tests inject the JAX draws through
+``update(..., noise={"eps_next": [U, B, A], "eps": [U, B, A]})`` (TD3: ``eps_next`` only).
+
+This module imports mlx and numpy (and the shim-written ``unilab_jax`` modules) only, never jax or
+optax.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+from types import ModuleType
+from typing import Any
+
+import mlx.core as mx
+import numpy as np
+
+from unilab_jax import xp as shim
+from unilab_jax.algos.offpolicy import learner_common as common
+from unilab_jax.algos.offpolicy import td3
+from unilab_jax.algos.offpolicy.sac import Norms, SACState
+from unilab_jax.algos.offpolicy.td3 import TD3State
+from unilab_jax.core import polyak
+from unilab_jax.fields import REPLAY_FIELDS as BATCH_FIELDS
+from unilab_mlx import optim
+from unilab_mlx.state import state_from_numpy, state_to_numpy
+
+__all__ = ["SACState", "TD3State", "SACFamilyLearner", "TD3Learner", "make_td3_learner", "state_from_numpy",
+           "state_to_numpy", "BATCH_FIELDS"]
+
+XP = shim.get("mlx")
+
+
+def _as_key(key: Any) -> mx.array:
+    if isinstance(key, int):
+        return mx.random.key(key)
+    return key if isinstance(key, mx.array) else mx.array(np.asarray(key, dtype=np.uint32))
+
+
+def _prepare_batch(batch: Mapping[str, Any]) -> dict:
+    """``learner_common.prepare_batch`` of the fields as mx arrays."""
+    return common.prepare_batch({k: batch[k] if isinstance(batch[k], mx.array) else mx.array(np.asarray(batch[k]))
+                                 for k in BATCH_FIELDS})
+
+
+class _Compiled:
+    """The MLX side of every off-policy learner: ``init`` (the state evaluated once)."""
+
+    def init(self, key: Any) -> Any:
+        key = _as_key(key)
+        state = self.initial_state(self.init_params(np.asarray(key)), XP.random.split(key, 2)[1])
+        mx.eval(state)
+        return state
+
+
+def _stack(step_metrics: list[dict]) -> dict:
+    return {k: mx.stack([m[k] for m in step_metrics]) for k in step_metrics[0]}
+
+
+def make_td3_learner(algo: ModuleType, config: td3.TD3Config, spec: Any) -> TD3Learner:
+    """The registry's factory for TD3."""
+    return TD3Learner(config, spec)
+
+
+def _noise(noise: Mapping[str, Any] | None, name: str, i: int, shape: tuple, key: mx.array) -> mx.array:
+    """Step ``i``'s standard-normal draw: the injected ``noise[name][i]`` or ``N(0, 1)`` from ``key``."""
+    if noise is not None:
+        a = noise[name][i]
+        a = a if isinstance(a, mx.array) else mx.array(np.asarray(a, dtype=np.float32))
+        if tuple(a.shape) != tuple(shape):
+            raise ValueError(f"noise[{name!r}][{i}] has shape {tuple(a.shape)}, {tuple(shape)} expected")
+        return a.astype(mx.float32)
+    return mx.random.normal(shape=tuple(shape), dtype=mx.float32, key=key)
+
+
+def _check_noise(noise: Mapping[str, Any] | None, names: tuple[str, ...], n: int) -> None:
+    if noise is None:
+        return
+    for name in names:
+        if name not in noise or len(noise[name]) < n:
+            raise ValueError(f"noise needs {names} with at least {n} steps each")
+
+
+class SACFamilyLearner(_Compiled, common.SACFamilyBase):
+    """Learner for SAC, FastSAC and FlashSAC (``algo`` is the algorithm module)."""
+
+    def __init__(self, algo: ModuleType, config: Any, spec: Any):
+        super().__init__(algo, config, spec, optim, XP)
+        self._step = mx.compile(self._step_fn)
+
+    def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
+                 eps: mx.array) -> tuple[tuple, dict]:
+        """One gradient step (critics, actor, temperature, Polyak), pure in its arguments."""
+        self.trace_count += 1
+        cfg, algo = self.config, self.algo
+        project = self._project or (lambda p: p)
+        actor, critic, target_critic, actor_opt, critic_opt, log_alpha, alpha_opt, steps = nets_opt
+        norms = Norms(*norms)
+        # 1. critics
+        (_, c_metrics), c_grads = XP.value_and_grad(algo.critic_loss, has_aux=True)(
+            critic, target_critic, actor, log_alpha, norms, mb, eps_next, cfg)
+        updates, new_critic_opt = self.critic_tx.update(c_grads, critic_opt, critic)
+        new_critic = project(optim.apply_updates(critic, updates))
+        # 2. actor, against the updated critics
+        (_, (a_metrics, log_prob)), a_grads = XP.value_and_grad(algo.actor_loss, has_aux=True)(
+            actor, new_critic, log_alpha, norms, mb, eps, cfg)
+        updates, new_actor_opt = self.actor_tx.update(a_grads, actor_opt, actor)
+        new_actor = project(optim.apply_updates(actor, updates))
+        # 3. temperature
+        new_log_alpha, new_alpha_opt, alpha_loss = log_alpha, alpha_opt, mx.array(0.0, dtype=mx.float32)
+        if cfg.autotune_alpha:
+            alpha_loss, g = XP.value_and_grad(algo.temperature_loss)(log_alpha, log_prob, self.target_entropy)
+            updates, new_alpha_opt = self.alpha_tx.update(g, alpha_opt, log_alpha)
+            new_log_alpha = optim.apply_updates(log_alpha, updates)
+        # 4. targets
+        new_target = project(polyak.polyak(target_critic, new_critic, cfg.tau))
+        metrics = {**c_metrics, **a_metrics, "alpha": mx.exp(new_log_alpha), "alpha_loss": alpha_loss,
+                   "critic_grad_norm": optim.global_norm(c_grads), "actor_grad_norm": optim.global_norm(a_grads)}
+        return (new_actor, new_critic, new_target, new_actor_opt, new_critic_opt, new_log_alpha, new_alpha_opt,
+                steps + 1), metrics
+
+    def update(self, state: SACState, batch: Mapping[str, Any],
+               noise: Mapping[str, Any] | None = None) -> tuple[SACState, dict]:
+        """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` is a no-op.
+
+        ``noise`` (testing/parity only): ``{"eps_next": [U, B, A], "eps": [U, B, A]}`` replacing the
+        standard-normal draws made from the state's key (the key still advances as usual).
+        """
+        if not batch:
+            return state, {}
+        batch = _prepare_batch(batch)
+        state, norms = self.normalize(state, batch)
+        norms = tuple(norms)
+
+        n = batch["reward"].shape[0]
+        _check_noise(noise, ("eps_next", "eps"), n)
+        keys = XP.random.split(state.key, n + 1)
+        carry = (state.actor, state.critic, state.target_critic, state.actor_opt, state.critic_opt,
+                 state.log_alpha, state.alpha_opt, state.steps)
+        step_metrics = []
+        for i in range(n):
+            mb = {k: v[i] for k, v in batch.items()}
+            shape = tuple(mb["action"].shape)
+            k_next, k_pi = XP.random.split(keys[i + 1], 2)
+            eps_next = _noise(noise, "eps_next", i, shape, k_next)
+            eps = _noise(noise, "eps", i, shape, k_pi)
+            carry, m = self._step(carry, norms, mb, eps_next, eps)
+            mx.eval(carry, m)  # one eval per compiled step
+            step_metrics.append(m)
+        metrics = common.mean_metrics(_stack(step_metrics))
+        metrics["reward_scale"] = norms[2]
+        actor, critic, target_critic, actor_opt, critic_opt, log_alpha, alpha_opt, steps = carry
+        new = state._replace(actor=actor, critic=critic, target_critic=target_critic, actor_opt=actor_opt,
+                             critic_opt=critic_opt, log_alpha=log_alpha, alpha_opt=alpha_opt, steps=steps,
+                             key=keys[0])
+        mx.eval(new, metrics)
+        return new, metrics
+
+
+class TD3Learner(_Compiled, common.TD3Base):
+    """Learner for TD3: delayed actor and target updates every ``policy_delay`` gradient steps."""
+
+    def __init__(self, config: td3.TD3Config, spec: Any):
+        super().__init__(config, spec, optim, XP)
+        self._steps = {flag: mx.compile(functools.partial(self._step_fn, do_actor=flag)) for flag in (False, True)}
+
+    def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
+                 do_actor: bool) -> tuple[tuple, dict]:
+        """One critic step, then (``do_actor``) the actor step and both Polyak updates."""
+        self.trace_count += 1
+        cfg = self.config
+        actor, critic, target_actor, target_critic, actor_opt, critic_opt, steps = nets_opt
+        norms = Norms(*norms)
+        (_, c_metrics), c_grads = XP.value_and_grad(td3.critic_loss, has_aux=True)(
+            critic, target_actor, target_critic, norms, mb, eps_next, cfg)
+        updates, critic_opt = self.critic_tx.update(c_grads, critic_opt, critic)
+        critic = optim.apply_updates(critic, updates)
+        a_loss = mx.array(0.0, dtype=mx.float32)
+        if do_actor:
+            (a_loss, _), grads = XP.value_and_grad(td3.actor_loss, has_aux=True)(actor, critic, norms, mb)
+            updates, actor_opt = self.actor_tx.update(grads, actor_opt, actor)
+            actor = optim.apply_updates(actor, updates)
+            target_actor = polyak.polyak(target_actor, actor, cfg.tau)
+            target_critic = polyak.polyak(target_critic, critic, cfg.tau)
+        metrics = {**c_metrics, "actor_loss_sum": a_loss,
+                   "actor_steps": mx.array(1.0 if do_actor else 0.0, dtype=mx.float32),
+                   "critic_grad_norm": optim.global_norm(c_grads)}
+        return (actor, critic, target_actor, target_critic, actor_opt, critic_opt, steps + 1), metrics
+
+    def update(self, state: TD3State, batch: Mapping[str, Any],
+               noise: Mapping[str, Any] | None = None) -> tuple[TD3State, dict]:
+        """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` is a no-op.
+
+        ``noise`` (testing/parity only): ``{"eps_next": [U, B, A]}`` replacing the target-smoothing
+        draws made from the state's key (the key still advances as usual).
+        """
+        if not batch:
+            return state, {}
+        cfg = self.config
+        batch = _prepare_batch(batch)
+        state, norms = self.normalize(state, batch)
+        norms = tuple(norms)
+
+        n = batch["reward"].shape[0]
+        _check_noise(noise, ("eps_next",), n)
+        keys = XP.random.split(state.key, n + 1)
+        step0 = int(state.steps.item())  # the delay schedule is decided on the host (one read per call)
+        carry = (state.actor, state.critic, state.target_actor, state.target_critic, state.actor_opt,
+                 state.critic_opt, state.steps)
+        step_metrics = []
+        for i in range(n):
+            mb = {k: v[i] for k, v in batch.items()}
+            eps_next = _noise(noise, "eps_next", i, tuple(mb["action"].shape), keys[i + 1])
+            # Fujimoto's schedule: the actor moves after every policy_delay-th critic step.
+            do_actor = (step0 + i + 1) % cfg.policy_delay == 0
+            carry, m = self._steps[do_actor](carry, norms, mb, eps_next)
+            mx.eval(carry, m)  # one eval per compiled step
+            step_metrics.append(m)
+        metrics = common.td3_metrics(_stack(step_metrics))
+        actor, critic, target_actor, target_critic, actor_opt, critic_opt, steps = carry
+        new = state._replace(actor=actor, critic=critic, target_actor=target_actor, target_critic=target_critic,
+                             actor_opt=actor_opt, critic_opt=critic_opt, steps=steps, key=keys[0])
+        mx.eval(new, metrics)
+        return new, metrics

@@ -1,0 +1,288 @@
+"""SAC: soft actor-critic, asynchronous, on per-worker replay rings.
+
+Reference: Haarnoja et al., "Soft Actor-Critic: Off-Policy Maximum Entropy Deep RL with a Stochastic
+Actor" (ICML 2018, arXiv:1801.01290) and "Soft Actor-Critic Algorithms and Applications"
+(arXiv:1812.05905, automatic temperature). Design choices:
+
+* Actor: an MLP ``obs -> [mean, raw_log_std]`` (2A outputs), tanh-squashed Gaussian with the exact
+  log-probability correction (``core.distributions.tanh_gaussian_sample``). ``log_std`` is bounded
+  smoothly, ``LOG_STD_MIN + (LOG_STD_MAX - LOG_STD_MIN) * (tanh(raw) + 1) / 2`` (CleanRL / FastSAC),
+  so it never saturates a hard clip with zero gradient.
+* Twin critics ``Q_i(critic_obs, action)`` (asymmetric: the critic sees the privileged
+  ``critic_obs``), stored as ONE stacked ensemble pytree (weights ``[2, in, out]``, vectors
+  ``[2, 1, out]``) so both run as one batched matmul; ``nets.apply`` works on it unchanged.
+* Soft Bellman target ``r + gamma (1 - terminated) (min_i Q'_i(s', a') - alpha log pi(a'|s'))`` with
+  ``a' ~ pi(.|s')`` from the current actor and Polyak-averaged target critics (``tau``). Truncated
+  transitions bootstrap from ``next_obs`` (the true successor, before auto-reset).
+* Update order per gradient step (CleanRL / Haarnoja): critics, then the actor against the freshly
+  updated critics, then the temperature ``log_alpha`` against the target entropy
+  ``target_entropy_per_dim * |A|`` (default ``-|A|``), then Polyak.
+* Observation normalisation (``normalize_obs``): running mean/var of ``obs`` (published to the
+  workers with the actor) and of ``critic_obs`` (learner only), updated from the first of the U
+  minibatches of every ``update`` call, so the count tracks sampled data rather than U x B.
+
+Published weights: ``{"actor": mlp, "obs_norm": RunningStats}``. The pure loss functions below are
+written against the shim (numpy / jax / mlx); the learners are ``learner_jax`` and ``learner_mlx`` beside it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+from unilab_jax import nets
+from unilab_jax import xp as shim
+from unilab_jax.core import distributions, normalizer
+from unilab_jax.core import sac as sac_core
+from unilab_jax.lazy import learner_maker
+
+SYNC = "async"
+BUFFER = "replay"
+LOG_STD_MIN = -5.0
+LOG_STD_MAX = 2.0
+ACTIVATION = "relu"  # hidden activation of actor and critics (the workers' ``act`` must agree)
+
+
+@dataclasses.dataclass(frozen=True)
+class OffPolicyConfig:
+    """What every off-policy algorithm of this family configures (defaults: SAC's).
+
+    Runtime fields: ``utd`` gradient steps per collected transition; ``updates_per_call`` (U)
+    gradient steps scanned inside one jitted ``update`` (the batch is ``[U, batch_size, ...]``);
+    ``replay_capacity`` transitions in all (split over workers); ``learning_starts`` transitions
+    collected before the first update; ``publish_every`` gradient steps between weight publications.
+    ``horizon``: control steps per worker chunk (the runtime's unit; the trainer and the CLI read it).
+    """
+
+    actor_hidden: tuple[int, ...] = (256, 256)
+    critic_hidden: tuple[int, ...] = (256, 256)
+    actor_learning_rate: float = 3e-4
+    critic_learning_rate: float = 3e-4
+    batch_size: int = 512
+    utd: float = 1.0
+    updates_per_call: int = 8
+    replay_capacity: int = 1_000_000
+    learning_starts: int = 5_000
+    publish_every: int = 8
+    horizon: int = 32  # env steps per worker chunk (bookkeeping only: async workers poll weights every step)
+    gamma: float = 0.99
+    tau: float = 0.005
+    normalize_obs: bool = True
+    max_grad_norm: float = 0.0  # 0 disables gradient clipping
+    weight_decay: float = 0.0  # decoupled (AdamW) when > 0
+
+    def __post_init__(self) -> None:
+        check_config(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig(OffPolicyConfig):
+    """SAC hyperparameters (Haarnoja et al. / CleanRL defaults, sized for many parallel envs): the
+    off-policy fields plus the temperature's."""
+
+    alpha_learning_rate: float = 3e-4
+    init_alpha: float = 0.2
+    autotune_alpha: bool = True
+    target_entropy_per_dim: float = -1.0  # target entropy = this * action_dim
+
+
+Config = SACConfig
+make_learner = learner_maker(__name__)
+
+
+def check_config(cfg: Any) -> None:
+    """Rejects invalid off-policy settings early (before any worker starts)."""
+    problems = []
+    if cfg.batch_size <= 0 or cfg.updates_per_call <= 0 or cfg.publish_every <= 0:
+        problems.append("batch_size, updates_per_call and publish_every must be positive")
+    if cfg.utd <= 0 or cfg.replay_capacity <= 0 or cfg.learning_starts < 0:
+        problems.append("utd and replay_capacity must be positive, learning_starts >= 0")
+    if not 0.0 <= cfg.gamma <= 1.0 or not 0.0 < cfg.tau <= 1.0:
+        problems.append(f"need 0 <= gamma <= 1 and 0 < tau <= 1 (gamma={cfg.gamma}, tau={cfg.tau})")
+    if getattr(cfg, "init_alpha", 1.0) <= 0:
+        problems.append("init_alpha must be positive")
+    if hasattr(cfg, "num_atoms") and (cfg.num_atoms < 2 or not cfg.v_min < cfg.v_max):
+        problems.append(f"need num_atoms >= 2 and v_min < v_max (got {cfg.num_atoms}, [{cfg.v_min}, {cfg.v_max}])")
+    if getattr(cfg, "policy_delay", 1) < 1:
+        problems.append("policy_delay must be >= 1")
+    if problems:
+        raise ValueError(f"{type(cfg).__name__}: " + "; ".join(problems))
+
+
+def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
+    """SAC writes nothing per transition besides the task's fields."""
+    return {}
+
+
+# ---------------------------------------------------------------------------------------------
+# Networks
+# ---------------------------------------------------------------------------------------------
+class SACState(NamedTuple):
+    """Training state of SAC, FastSAC and FlashSAC (one pytree; arrays of the learner's platform)."""
+
+    actor: Any
+    critic: Any  # twin critics, stacked ensemble (leading axis 2)
+    target_critic: Any
+    actor_opt: Any
+    critic_opt: Any
+    log_alpha: Any  # [] float32
+    alpha_opt: Any
+    obs_norm: normalizer.RunningStats
+    critic_norm: normalizer.RunningStats
+    reward_norm: normalizer.RunningStats  # D = 1: reward moments (FlashSAC reward normalisation; unused by SAC)
+    key: Any
+    steps: Any  # gradient steps so far (int32)
+
+
+class Norms(NamedTuple):
+    """Input/reward normalisation used by the losses.
+
+    ``obs``/``critic`` are RunningStats over ``obs`` [D] and ``critic_obs`` [Dc]; ``reward_scale`` is
+    a scalar the rewards are divided by before the critic target (1.0: no reward normalisation).
+    """
+
+    obs: normalizer.RunningStats
+    critic: normalizer.RunningStats
+    reward_scale: Any
+
+
+def mlp_apply(params: list[dict], x: Any) -> Any:
+    """``nets.apply`` with this family's activation; ensemble params give ``[E, B, out]``."""
+    return nets.apply(params, x, ACTIVATION)
+
+
+def ensemble_init(key: Any, sizes: list[int], n: int, xp: shim.Backend, final_scale: float = 1.0,
+                  layer_norm: bool = False) -> list[dict]:
+    """``n`` independent MLPs stacked leaf-wise: weights ``[n, in, out]``, vectors ``[n, 1, out]``.
+
+    ``nets.apply(params, x [B, in])`` then returns ``[n, B, out]`` (broadcast matmul).
+    """
+    keys = xp.random.split(key, n)
+    members = [nets.init(keys[i], sizes, xp, final_scale=final_scale, layer_norm=layer_norm) for i in range(n)]
+
+    def stack(*leaves: Any) -> Any:
+        s = xp.stack(list(leaves))
+        return xp.reshape(s, (n, 1, s.shape[-1])) if len(leaves[0].shape) == 1 else s
+
+    return shim.tree_map(stack, *members)
+
+
+def tanh_gaussian_head(out: Any) -> tuple[Any, Any]:
+    """Splits an actor output ``[..., 2A]`` into ``mean [..., A]`` and bounded ``log_std [..., A]``."""
+    xp = shim.namespace(out)
+    a = int(out.shape[-1]) // 2
+    mean, raw = out[..., :a], out[..., a:]
+    log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (xp.tanh(raw) + 1.0)
+    return mean, log_std
+
+
+def policy(actor: Any, obs_norm: normalizer.RunningStats, obs: Any,
+           actor_apply: Callable = mlp_apply) -> tuple[Any, Any]:
+    """Pre-squash Gaussian of the policy. obs [B, D] -> (mean [B, A], log_std [B, A])."""
+    return tanh_gaussian_head(actor_apply(actor, normalizer.normalize(obs_norm, obs)))
+
+
+def critic_input(critic_norm: normalizer.RunningStats, critic_obs: Any, action: Any) -> Any:
+    """``concat(normalize(critic_obs), action)``: [B, Dc], [B, A] -> [B, Dc + A]."""
+    xp = shim.namespace(critic_obs, action)
+    return xp.concat([normalizer.normalize(critic_norm, critic_obs), action], axis=-1)
+
+
+def tanh_gaussian_act(weights: dict, obs: Any, noise: Any, deterministic: bool,
+                      actor_apply: Callable = mlp_apply) -> tuple[Any, dict]:
+    """Worker-side tanh-Gaussian policy: ``tanh(mean)`` or ``tanh(mean + std * noise)``."""
+    xp = shim.namespace(obs)
+    mean, log_std = policy(weights["actor"], weights["obs_norm"], obs, actor_apply)
+    u = mean if deterministic else mean + xp.exp(log_std) * noise
+    return xp.astype(xp.tanh(u), xp.float32), {}
+
+
+def act(weights: dict, obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
+    """obs [M, obs_dim], noise [M, A] standard normal -> (action [M, A] in (-1, 1), {})."""
+    return tanh_gaussian_act(weights, obs, noise, deterministic)
+
+
+def init_params(key: Any, obs_dim: int, critic_obs_dim: int, action_dim: int, config: SACConfig,
+                xp: shim.Backend) -> dict[str, Any]:
+    """``{"actor": mlp [obs -> 2A], "critic": 2-ensemble [critic_obs + A -> 1]}``."""
+    ka, kc = xp.random.split(key, 2)
+    return {
+        "actor": nets.init(ka, [obs_dim, *config.actor_hidden, 2 * action_dim], xp, final_scale=0.01),
+        "critic": ensemble_init(kc, [critic_obs_dim + action_dim, *config.critic_hidden, 1], 2, xp),
+    }
+
+
+def policy_weights(actor: Any, obs_norm: normalizer.RunningStats) -> dict[str, Any]:
+    """The published weight pytree ``act`` reads."""
+    return {"actor": actor, "obs_norm": obs_norm}
+
+
+# ---------------------------------------------------------------------------------------------
+# Losses (pure; every batch field is [B, ...]: obs, critic_obs, action, reward, next_obs,
+# next_critic_obs, terminated, truncated as float32)
+# ---------------------------------------------------------------------------------------------
+def discounts(mb: dict, gamma: float) -> Any:
+    """``gamma * (1 - terminated)`` [B]: termination cuts the bootstrap, truncation does not."""
+    xp = shim.namespace(mb["terminated"])
+    return gamma * (1.0 - xp.astype(mb["terminated"], xp.float32))
+
+
+def scalar_q(critic: Any, x: Any, critic_apply: Callable = mlp_apply) -> Any:
+    """Twin scalar critics on ``x`` [B, Dc + A] -> Q [E, B]."""
+    return critic_apply(critic, x)[..., 0]
+
+
+def critic_target(target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, mb: dict, eps_next: Any,
+                  gamma: float) -> Any:
+    """Soft Bellman target [B] (gradient-stopped).
+
+    ``y = r / reward_scale + gamma (1 - terminated) (min_i Q'_i(s', a') - alpha log pi(a'|s'))`` with
+    ``a' = tanh(mean(s') + std(s') * eps_next)``; eps_next: [B, A] standard normal.
+    """
+    xp = shim.namespace(mb["reward"])
+    mean, log_std = policy(actor, norms.obs, mb["next_obs"])
+    next_action, next_log_prob = distributions.tanh_gaussian_sample(mean, log_std, eps_next)
+    next_q = scalar_q(target_critic, critic_input(norms.critic, mb["next_critic_obs"], next_action))
+    alpha = xp.exp(log_alpha)
+    return sac_core.sac_target(mb["reward"] / norms.reward_scale, discounts(mb, gamma), next_q[0], next_q[1],
+                               next_log_prob, alpha)
+
+
+def critic_loss(critic: Any, target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, mb: dict,
+                eps_next: Any, config: SACConfig) -> tuple[Any, dict]:
+    """Twin-critic MSE to the soft target (scalar; gradients reach ``critic`` only)."""
+    xp = shim.namespace(mb["reward"])
+    y = critic_target(target_critic, actor, log_alpha, norms, mb, eps_next, config.gamma)
+    q = scalar_q(critic, critic_input(norms.critic, mb["critic_obs"], mb["action"]))
+    loss = sac_core.sac_critic_loss(q[0], q[1], y)
+    return loss, {"critic_loss": loss, "q_mean": xp.mean(q), "target_mean": xp.mean(y)}
+
+
+def soft_actor_loss(actor: Any, critic: Any, log_alpha: Any, norms: Norms, mb: dict, eps: Any,
+                    q_fn: Callable, actor_apply: Callable = mlp_apply, use_min: bool = True) -> tuple[Any, tuple]:
+    """``mean(alpha log pi(a|s) - Q(s, a))``, ``a = tanh(mean + std * eps)`` reparameterised.
+
+    ``q_fn(critic, x [B, Dc + A]) -> [E, B]``; Q is the min over the ensemble (``use_min``) or its
+    mean. Returns ``(loss, (metrics, log_prob [B]))``; the log probs feed the temperature loss.
+    """
+    xp = shim.namespace(mb["obs"])
+    mean, log_std = policy(actor, norms.obs, mb["obs"], actor_apply)
+    action, log_prob = distributions.tanh_gaussian_sample(mean, log_std, eps)
+    q = q_fn(critic, critic_input(norms.critic, mb["critic_obs"], action))
+    if not use_min:
+        q = xp.stack([xp.mean(q, axis=0)] * 2)
+    loss = sac_core.sac_actor_loss(q[0], q[1], log_prob, xp.exp(log_alpha))
+    return loss, ({"actor_loss": loss, "entropy": -xp.mean(log_prob),
+                   "policy_std": xp.mean(xp.exp(log_std))}, log_prob)
+
+
+def actor_loss(actor: Any, critic: Any, log_alpha: Any, norms: Norms, mb: dict, eps: Any,
+               config: SACConfig) -> tuple[Any, tuple]:
+    """SAC actor loss with twin scalar critics (min); see ``soft_actor_loss``."""
+    return soft_actor_loss(actor, critic, log_alpha, norms, mb, eps, scalar_q)
+
+
+def temperature_loss(log_alpha: Any, log_prob: Any, target_entropy: float) -> Any:
+    """``-mean(alpha (log pi + target_entropy))`` (log probs gradient-stopped). log_prob: [B]."""
+    return sac_core.sac_temperature_loss(log_alpha, log_prob, target_entropy)
