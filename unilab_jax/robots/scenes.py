@@ -123,6 +123,7 @@ def _add_world(spec: mujoco.MjSpec, hand_body: str) -> None:
     spec.option.impratio = 10.0
     spec.visual.global_.offwidth = 256
     spec.visual.global_.offheight = 256
+    spec.visual.quality.offsamples = 0
     world = spec.worldbody
     world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1.5, 1.5, 0.01],
                    rgba=[0.55, 0.5, 0.45, 1.0])

@@ -159,6 +159,9 @@ class SimRobot(Robot):
                     f"cannot create an offscreen renderer ({type(e).__name__}: {e}); set MUJOCO_GL=egl "
                     "(needs libegl1, libegl-mesa0, libgl1-mesa-dri) or MUJOCO_GL=osmesa (libosmesa6) before "
                     "mujoco is imported, or configure the robot without cameras") from e
+            # Shadows and reflections cost ~10x the frame time in software GL (llvmpipe).
+            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
 
     def reset(self, seed: int | None = None) -> dict[str, np.ndarray]:
         start = time.perf_counter()
