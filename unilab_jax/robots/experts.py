@@ -46,12 +46,14 @@ def _split(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, float, n
 
 
 class PickPlaceExpert:
-    """Above the cube (yaw aligned) -> down -> close -> lift -> over the bin -> open."""
+    """Above the cube (yaw aligned) -> down -> close -> lift -> over the bin -> open. If the cube is not
+    between the fingers while carrying it (a missed or slipped grasp), it starts over from above the cube."""
 
     hover = 0.1  # above the cube while aligning
     carry_z = 0.16
     release_z = 0.11
     grasp_steps = 5
+    held_dist = 0.03  # the cube counts as held within this distance of the tcp
 
     def __init__(self, spec: RobotSpec):
         self.spec = spec
@@ -65,34 +67,35 @@ class PickPlaceExpert:
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         tcp, quat, _, state = _split(obs)
         obj, bin_pos = state[:3], state[7:10]
+        if self.phase in ("lift", "transfer", "lower") and np.linalg.norm(obj - tcp) > self.held_dist:
+            self.phase, self.yaw = "approach", None
         if self.yaw is None:
             self.yaw = square_yaw(object_yaw(state))
         q = grasp_quat(self.yaw)
         above = obj + [0.0, 0.0, self.hover]
-        grasp_at = obj.copy()
         if self.phase == "approach":
             if np.linalg.norm(tcp - above) < 0.01 and np.linalg.norm(ik.quat_error(q, quat)) < 0.05:
                 self.phase = "descend"
             return move_action(tcp, quat, above, q, OPEN, self.spec)
         if self.phase == "descend":
-            if np.linalg.norm(tcp - grasp_at) < 0.006:
-                self.phase = "grasp"
-            return move_action(tcp, quat, grasp_at, q, OPEN, self.spec, max_speed=0.6)
+            if np.linalg.norm(tcp - obj) < 0.006:
+                self.phase, self.count = "grasp", 0
+            return move_action(tcp, quat, obj, q, OPEN, self.spec, max_speed=0.6)
         if self.phase == "grasp":
             self.count += 1
             if self.count >= self.grasp_steps:
                 self.phase = "lift"
-            return move_action(tcp, quat, grasp_at, q, CLOSED, self.spec)
-        carry = np.array([tcp[0], tcp[1], self.carry_z])
-        over_bin = np.array([bin_pos[0], bin_pos[1], self.carry_z])
+            return move_action(tcp, quat, obj, q, CLOSED, self.spec)
         if self.phase == "lift":
             if tcp[2] > self.carry_z - 0.03:
                 self.phase = "transfer"
-            return move_action(tcp, quat, carry, q, CLOSED, self.spec)
+            lift = np.array([tcp[0], tcp[1], self.carry_z])
+            return move_action(tcp, quat, lift, q, CLOSED, self.spec, max_speed=0.6)
         if self.phase == "transfer":
             if np.linalg.norm(tcp[:2] - bin_pos[:2]) < 0.015:
                 self.phase = "lower"
-            return move_action(tcp, quat, over_bin, q, CLOSED, self.spec)
+            over_bin = np.array([bin_pos[0], bin_pos[1], self.carry_z])
+            return move_action(tcp, quat, over_bin, q, CLOSED, self.spec, max_speed=0.8)
         release = np.array([bin_pos[0], bin_pos[1], self.release_z])
         if self.phase == "lower":
             if tcp[2] < self.release_z + 0.01:

@@ -5,8 +5,8 @@
         [--fault=drop:0.1] [--fault=stall_after:50] [--fault=exit_after:30]
 
 Prints ``serving NAME on tcp://HOST:PORT`` (flushed) once it accepts requests (``--port=0``: a free
-port), and exits cleanly on SIGTERM / SIGINT. ``MUJOCO_GL`` defaults to ``egl`` (software Mesa works)
-so cameras render without a display.
+port), and exits cleanly on SIGTERM / SIGINT. With cameras and no ``MUJOCO_GL`` set, the first backend of
+``robots.gl.CANDIDATES`` that renders is used (egl works with software Mesa, no display needed).
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ import os
 import signal
 import sys
 import threading
+
+from unilab_jax.robots.gl import find_gl_backend
 
 
 def parse_faults(items: list[str]) -> dict[str, float | int]:
@@ -56,11 +58,17 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
-    os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported
+    cameras = () if args.cameras in ("", "none") else tuple(args.cameras.split(","))
+    if cameras and "MUJOCO_GL" not in os.environ:  # must be set before mujoco is imported
+        backend, reasons = find_gl_backend()
+        if backend is None:
+            print(f"error: no offscreen GL backend for the cameras ({'; '.join(reasons)}); use --cameras=none",
+                  file=sys.stderr)
+            return 2
+        os.environ["MUJOCO_GL"] = backend
     from unilab_jax.robots.server import FaultConfig, RobotServer, ServerConfig
     from unilab_jax.robots.sim import SimConfig, SimRobot
 
-    cameras = () if args.cameras in ("", "none") else tuple(args.cameras.split(","))
     try:
         sim = SimConfig(arm=args.robot, task=args.task, name=args.name, speed=args.speed,
                         latency_s=args.latency_ms / 1000, jitter_s=args.jitter_ms / 1000, proprio_noise=args.noise,
