@@ -82,6 +82,9 @@ def test_second_client_is_refused_until_release_or_lease_expiry():
         with pytest.raises(RobotClaimed):
             second.connect()
         assert second.health().state == "ok"  # health and estop stay open to everyone
+        second.estop()
+        assert first.health().state == "estopped"
+        first.clear_estop()
         first.close()  # releases
         second.connect()
         second.reset(seed=0)
@@ -109,6 +112,19 @@ def test_dropped_reply_raises_robot_disconnected():
             robot.connect()
         assert time.perf_counter() - t < 1.0
         assert robot.health().state == "disconnected"
+        robot.close()
+
+
+def test_stalled_server_raises_robot_disconnected():
+    with thread_server(faults=FaultConfig(stall_after_steps=2)) as server:
+        robot = RobotClient(server.address, timeout_s=0.3, heartbeat_s=0)
+        robot.connect()
+        robot.reset(seed=0)
+        robot.step(HOLD)
+        with pytest.raises(RobotDisconnected, match="did not answer 'step'"):
+            robot.step(HOLD)
+        assert robot.health().state == "disconnected"
+        assert robot.health().dropped_messages >= 2  # the step and the first health call
         robot.close()
 
 

@@ -147,7 +147,8 @@ class RobotClient(Robot):
                     pass
             self._chan.close()
             self._chan = None
-        self._ctx.term()
+        if not self._ctx.closed:
+            self._ctx.term()
 
     # ---------------------------------------------------------------------------------------------
     def _spec(self) -> RobotSpec:

@@ -164,7 +164,10 @@ class Robot(abc.ABC):
 
     @abc.abstractmethod
     def step(self, action: np.ndarray) -> Step:
-        """Applies one action [7] for one control period; never returns sooner than ``spec.period_s``."""
+        """Applies one action [7] for one control period; never returns sooner than ``spec.period_s``.
+
+        After a step that ends the episode (``terminated``: success; ``truncated``: time limit) the robot
+        refuses steps until ``reset``."""
 
     @abc.abstractmethod
     def estop(self) -> None:
