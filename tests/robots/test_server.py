@@ -73,15 +73,16 @@ def test_malformed_and_oversized_messages_get_error_replies():
 
 def test_second_client_is_refused_until_release_or_lease_expiry():
     with thread_server() as server:
-        first = RobotClient(server.address, client_id="first", lease_s=0.4, heartbeat_s=0.1)
+        first = RobotClient(server.address, client_id="first", lease_s=0.6, heartbeat_s=0.1)
         first.connect()
         second = RobotClient(server.address, client_id="second", timeout_s=1.0)
         with pytest.raises(RobotClaimed, match="claimed by client 'first'"):
             second.connect()
-        time.sleep(0.8)  # the heartbeat keeps the lease alive while the first client idles
+        time.sleep(1.0)  # the heartbeat keeps the lease alive while the first client idles
         with pytest.raises(RobotClaimed):
             second.connect()
-        assert second.health().state == "ok"  # health and estop stay open to everyone
+        health = second.health()  # health and estop stay open to everyone
+        assert health.state == "ok" and health.owner == "first"
         second.estop()
         assert first.health().state == "estopped"
         first.clear_estop()

@@ -15,6 +15,7 @@ that renews the claim while the caller is busy elsewhere (e.g. training between 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import threading
 import time
@@ -170,12 +171,11 @@ class RobotClient(Robot):
         return result
 
     def _health_from(self, d: dict[str, Any]) -> Health:
-        fields = {k: d[k] for k in ("state", "steps", "late_actions", "resets", "dropped_messages", "detail")}
-        self._last_health = Health(**fields)
+        self._last_health = Health(**{f.name: d[f.name] for f in dataclasses.fields(Health)})
         return self._with_client_counts(self._last_health, self._last_health.state)
 
     def _with_client_counts(self, h: Health, state: str) -> Health:
-        return Health(state, h.steps, h.late_actions, h.resets, h.dropped_messages + self._timeouts, h.detail)
+        return dataclasses.replace(h, state=state, dropped_messages=h.dropped_messages + self._timeouts)
 
     def _heartbeat_loop(self) -> None:
         while not self._stop.wait(self.heartbeat_s):

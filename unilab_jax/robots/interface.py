@@ -7,7 +7,7 @@ A robot is one arm in one scene, driven in end-effector space at a fixed wall-cl
     step = robot.step(action)               # action [7] float32 in [-1, 1]; paced by the control rate
     step.obs, step.reward, step.terminated, step.truncated, step.info["success"]
     robot.estop(); robot.clear_estop()      # hold still, refuse steps / accept them again
-    robot.health()                          # Health(state, steps, late_actions, resets, dropped_messages)
+    robot.health()                          # Health(state, steps, late_actions, resets, dropped_messages, ...)
     robot.close()
 
 Observations are dicts of numpy arrays: ``"proprio"`` float32 ``[spec.proprio_dim]``, one uint8
@@ -121,6 +121,7 @@ class Health:
     resets: int = 0
     dropped_messages: int = 0  # replies not delivered (server) / requests that timed out (client)
     detail: str = ""
+    owner: str = ""  # id of the client holding the robot (served robots; "" when free)
 
     def __post_init__(self):
         if self.state not in HEALTH_STATES:

@@ -182,8 +182,8 @@ class RobotServer:
             self.robot.estop()
 
     def _health(self) -> dict[str, Any]:
-        health = dataclasses.replace(self.robot.health(), dropped_messages=self._dropped)
-        return {**health.to_dict(), "owner": self.owner}
+        health = dataclasses.replace(self.robot.health(), dropped_messages=self._dropped, owner=self.owner or "")
+        return health.to_dict()
 
     def _apply_faults(self, reply: bytes) -> bytes | None:
         f = self.config.faults
