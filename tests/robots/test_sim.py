@@ -42,6 +42,14 @@ def test_step_takes_the_control_period(speed):
     assert robot.health().late_actions == 0
 
 
+def test_steps_longer_than_the_period_are_counted_as_overruns():
+    robot = _robot(speed=2000.0)  # 50 us periods: 50 physics steps take longer
+    robot.reset(seed=0)
+    robot.step(HOLD)
+    robot.step(HOLD)
+    assert robot.health().overruns == 2
+
+
 def test_reset_blocks_for_its_duration():
     robot = _robot(speed=10.0, reset_seconds=2.0)
     t = time.perf_counter()

@@ -4,16 +4,22 @@
 returns float32 ``[7]`` in [-1, 1]. Privileged layout (see ``robots.sim``): tcp position (3),
 tcp quaternion (4), gripper opening (1), task state (``robots.tasks``).
 
+``evaluate_expert(task, arm, episodes)`` measures an expert's success rate in-process.
+
 Each expert is a small phase machine over target tcp poses; translation and rotation commands are
 proportional to the remaining error, clipped to one step's maximum.
 """
 
 from __future__ import annotations
 
+import math
+import time
+
 import numpy as np
 
 from unilab_jax.robots import ik, scenes
 from unilab_jax.robots.interface import RobotSpec
+from unilab_jax.robots.sim import SimConfig, SimRobot
 from unilab_jax.robots.tasks import PegGeometry, object_yaw
 
 OPEN, CLOSED = -1.0, 1.0
@@ -134,6 +140,7 @@ class PegInsertionExpert:
 
 
 EXPERTS = {"pick_place": PickPlaceExpert, "peg_insertion": PegInsertionExpert}
+PAIRS = (("peg_insertion", "franka"), ("pick_place", "franka"), ("pick_place", "ur5e"), ("peg_insertion", "ur5e"))
 
 
 def make_expert(spec: RobotSpec) -> PickPlaceExpert | PegInsertionExpert:
@@ -141,3 +148,27 @@ def make_expert(spec: RobotSpec) -> PickPlaceExpert | PegInsertionExpert:
     if spec.task not in EXPERTS:
         raise ValueError(f"no scripted expert for task {spec.task!r}; available: {sorted(EXPERTS)}")
     return EXPERTS[spec.task](spec)
+
+
+def evaluate_expert(task: str, arm: str, episodes: int, seed: int = 0) -> dict:
+    """Runs the scripted expert in-process (unpaced, no cameras) for ``episodes`` random episodes.
+
+    Returns {task, arm, episodes, success_rate, mean_steps, seconds}.
+    """
+    robot = SimRobot(SimConfig(arm=arm, task=task, speed=math.inf, cameras=(), reset_seconds=0.0, seed=seed))
+    expert = make_expert(robot.spec)
+    successes, steps = 0, 0
+    t = time.perf_counter()
+    for episode in range(episodes):
+        obs = robot.reset(seed=seed * 100_000 + episode)
+        expert.reset()
+        while True:
+            result = robot.step(expert(obs))
+            obs = result.obs
+            if result.terminated or result.truncated:
+                break
+        successes += result.info["success"]
+        steps += result.info["t"]
+    robot.close()
+    return {"task": task, "arm": arm, "episodes": episodes, "success_rate": successes / episodes,
+            "mean_steps": steps / episodes, "seconds": time.perf_counter() - t}

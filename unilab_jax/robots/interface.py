@@ -122,6 +122,7 @@ class Health:
     dropped_messages: int = 0  # replies not delivered (server) / requests that timed out (client)
     detail: str = ""
     owner: str = ""  # id of the client holding the robot (served robots; "" when free)
+    overruns: int = 0  # steps whose own work (simulation, rendering) took longer than the control period
 
     def __post_init__(self):
         if self.state not in HEALTH_STATES:

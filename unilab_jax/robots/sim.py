@@ -38,7 +38,7 @@ from unilab_jax.robots.interface import (
     Step,
     check_action,
 )
-from unilab_jax.robots.tasks import make_task
+from unilab_jax.robots.tasks import TASKS, make_task
 
 PROPRIO_DIM = 13
 CAMERAS = ("front", "wrist")
@@ -72,6 +72,8 @@ class SimConfig:
     def __post_init__(self):
         if self.arm not in scenes.ARMS:
             raise ValueError(f"unknown arm {self.arm!r}; choose one of {sorted(scenes.ARMS)}")
+        if self.task not in TASKS:
+            raise ValueError(f"unknown task {self.task!r}; choose one of {sorted(TASKS)}")
         unknown = set(self.cameras) - set(CAMERAS)
         if unknown:
             raise ValueError(f"unknown cameras {sorted(unknown)}; available: {CAMERAS}")
@@ -138,7 +140,7 @@ class SimRobot(Robot):
         self._state = "ok"
         self._detail = ""
         self._ready = False
-        self._counts = {"steps": 0, "late_actions": 0, "resets": 0}
+        self._counts = {"steps": 0, "late_actions": 0, "resets": 0, "overruns": 0}
         self._pending: list[tuple[int, np.ndarray]] = []  # (substeps until applied, ctrl [nu])
         self._last_return: float | None = None
         self._t = 0
@@ -176,7 +178,7 @@ class SimRobot(Robot):
         home_quat = np.array(scenes.HOME_TCP_QUAT)
         q = self._ik(self._home_q, home_pos, home_quat, iterations=30)
         d.qpos[self.ix.qpos] = q
-        grip = 1.0 if getattr(self.task, "grip_closed_at_reset", False) else -1.0
+        grip = 1.0 if self.task.grip_closed_at_reset else -1.0
         d.ctrl[self.ix.ctrl] = q
         d.ctrl[self.ix.gripper_ctrl] = gripper_ctrl(grip, self.info)
         if grip > 0:
@@ -224,6 +226,8 @@ class SimRobot(Robot):
         truncated = self._t >= self.spec.episode_length and not success
         if success or truncated:
             self._ready = False
+        if self.spec.period_s and time.perf_counter() > start + self.spec.period_s:
+            self._counts["overruns"] += 1
         self._sleep_until(start + self.spec.period_s)
         self._last_return = time.perf_counter()
         return Step(obs, float(reward), bool(success), bool(truncated),

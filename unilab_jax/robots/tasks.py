@@ -63,6 +63,7 @@ class RobotTask(abc.ABC):
     episode_length: int
     state_dim: int
     arms: tuple[str, ...]
+    grip_closed_at_reset: bool = False
 
     def __init__(self, kind: str, dense_reward: bool):
         if kind not in self.arms:
@@ -183,7 +184,6 @@ class PickPlace(RobotTask):
     episode_length = 100
     state_dim = 10
     arms = ("franka", "ur5e")
-    grip_closed_at_reset = False
     object_x = (0.4, 0.58)
     object_y = (-0.02, 0.16)
     bin_x = (0.44, 0.52)
