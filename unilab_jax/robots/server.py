@@ -127,6 +127,10 @@ class RobotServer:
             raise BadRequest(f"unknown op {op!r}; known: {sorted(OPEN_OPS | OWNER_OPS)}")
         if op in OWNER_OPS:
             self._check_owner(client)
+            result = self._owner_op(op, args)
+            if self.owner == client:  # a reset may outlast a short lease
+                self._lease_end = time.monotonic() + self._lease_s
+            return result
         if op == "spec":
             return self.robot.spec.to_dict()
         if op == "health":
@@ -136,8 +140,9 @@ class RobotServer:
         if op == "estop":
             self.robot.estop()
             return self._health()
-        if op == "claim":
-            return self._claim(client, args)
+        return self._claim(client, args)
+
+    def _owner_op(self, op: str, args: dict[str, Any]) -> Any:
         if op == "release":
             self.owner = None
             return {}
