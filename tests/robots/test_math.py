@@ -12,7 +12,14 @@ from unilab_jax.robots.experts import move_action, square_yaw
 from unilab_jax.robots.interface import BadRequest, Health, RobotSpec, check_action
 from unilab_jax.robots.serve import parse_faults
 from unilab_jax.robots.sim import apply_delta, gripper_ctrl, gripper_opening, proprio_vector
-from unilab_jax.robots.tasks import BinGeometry, PegGeometry, in_bin, peg_dense_reward, peg_success
+from unilab_jax.robots.tasks import (
+    BinGeometry,
+    PegGeometry,
+    in_bin,
+    peg_dense_reward,
+    peg_success,
+    pick_place_dense_reward,
+)
 
 
 def _spec(**kw) -> RobotSpec:
@@ -99,6 +106,16 @@ def test_in_bin():
     assert in_bin(np.array([0.5, -0.2, 0.03]), b, g)
     assert not in_bin(np.array([0.5, -0.2, 0.06]), b, g)  # above the walls
     assert not in_bin(np.array([0.56, -0.2, 0.03]), b, g)  # 8 cm off-centre, walls at 7 cm
+
+
+def test_pick_place_dense_reward():
+    g = BinGeometry()
+    b = np.array([0.5, -0.2, 0.0])
+    held_over_bin = np.array([0.5, -0.2, 0.1])
+    assert pick_place_dense_reward(held_over_bin, held_over_bin, b, g) == pytest.approx(1.0)
+    # on the table, 0.1 m from the tcp: only the reaching term, 1 - tanh(1)
+    obj = np.array([0.5, 0.1, 0.02])
+    assert pick_place_dense_reward(obj, obj + [0.0, 0.0, 0.1], b, g) == pytest.approx((1 - math.tanh(1.0)) / 3)
 
 
 def test_move_action_is_proportional_and_clipped():

@@ -248,7 +248,7 @@ class SimRobot(Robot):
             self._last_return = time.perf_counter()
 
     def health(self) -> Health:
-        return Health(self._state, dropped_messages=0, detail=self._detail, **self._counts)
+        return Health(self._state, detail=self._detail, **self._counts)
 
     def close(self) -> None:
         if self._renderer is not None:
