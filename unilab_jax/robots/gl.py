@@ -3,7 +3,7 @@
 ``find_gl_backend()`` tries each candidate in a fresh interpreter (a failed GL setup can leave a
 process unusable) and returns ``(backend, reasons)``: the first one that renders a frame, or None with
 each candidate's failure. On Linux without a display: ``egl`` needs libegl1 + libegl-mesa0 +
-libgl1-mesa-dri (Mesa's software rasteriser works); ``osmesa`` needs libosmesa6.
+libgl1-mesa-dri + libopengl0 (Mesa's software rasteriser works); ``osmesa`` needs libosmesa6.
 """
 
 from __future__ import annotations

@@ -159,8 +159,8 @@ class SimRobot(Robot):
             except Exception as e:  # noqa: BLE001  (GL setup errors come in many types)
                 raise RobotError(
                     f"cannot create an offscreen renderer ({type(e).__name__}: {e}); set MUJOCO_GL=egl "
-                    "(needs libegl1, libegl-mesa0, libgl1-mesa-dri) or MUJOCO_GL=osmesa (libosmesa6) before "
-                    "mujoco is imported, or configure the robot without cameras") from e
+                    "(needs libegl1, libegl-mesa0, libgl1-mesa-dri, libopengl0) or MUJOCO_GL=osmesa (libosmesa6) "
+                    "before mujoco is imported, or configure the robot without cameras") from e
             # Shadows and reflections cost ~10x the frame time in software GL (llvmpipe).
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
