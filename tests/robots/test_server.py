@@ -12,6 +12,7 @@ import zmq
 
 from unilab_jax.robots import protocol
 from unilab_jax.robots.client import RobotClient
+from unilab_jax.robots.experts import make_expert
 from unilab_jax.robots.interface import RobotClaimed, RobotDisconnected
 from unilab_jax.robots.server import FaultConfig, RobotServer, ServerConfig
 from unilab_jax.robots.sim import SimConfig, SimRobot
@@ -152,6 +153,21 @@ def test_killed_server_disconnects_client_promptly_and_restart_accepts_a_new_cli
         assert fresh.step(MOVE).obs["proprio"].shape == (13,)
         assert fresh.health().steps == 1
     assert restarted.stop() == 0
+
+
+def test_expert_episode_over_the_wire(serve):
+    server = serve("--robot=ur5e", "--task=pick_place", "--port=0", "--latency_ms=20", "--jitter_ms=5", *FAST)
+    with RobotClient(server.address) as robot:
+        expert = make_expert(robot.spec)
+        obs = robot.reset(seed=3)
+        for _ in range(robot.spec.episode_length):
+            step = robot.step(expert(obs))
+            obs = step.obs
+            if step.terminated or step.truncated:
+                break
+        assert step.terminated and step.info["success"] and step.reward == 1.0
+        health = robot.health()
+    assert health.steps == step.info["t"] and health.resets == 1 and health.state == "ok"
 
 
 def test_injected_exit_fault_ends_the_server_mid_episode(serve):
