@@ -11,7 +11,7 @@ import pytest
 import zmq
 
 from unilab_jax.robots import protocol
-from unilab_jax.robots.client import RobotClient
+from unilab_jax.robots.client import RobotClient, query
 from unilab_jax.robots.experts import make_expert
 from unilab_jax.robots.interface import RobotClaimed, RobotDisconnected
 from unilab_jax.robots.server import FaultConfig, RobotServer, ServerConfig
@@ -84,6 +84,8 @@ def test_second_client_is_refused_until_release_or_lease_expiry():
             second.connect()
         health = second.health()  # health and estop stay open to everyone
         assert health.state == "ok" and health.owner == "first"
+        spec, health = query(server.address)
+        assert spec.name == "franka_pick_place" and health.owner == "first"
         second.estop()
         assert first.health().state == "estopped"
         first.clear_estop()
@@ -145,13 +147,19 @@ def test_killed_server_disconnects_client_promptly_and_restart_accepts_a_new_cli
     print(f"disconnect detected after {waited * 1e3:.0f} ms")
     assert waited < 1.5
     assert robot.health().state == "disconnected"
-    robot.close()
+    with pytest.raises(RobotDisconnected):
+        query(server.address, timeout_s=0.3)
 
     restarted = serve("--robot=franka", "--task=pick_place", f"--port={server.port}", *FAST)
     with RobotClient(restarted.address, timeout_s=2.0) as fresh:
         fresh.reset(seed=0)
         assert fresh.step(MOVE).obs["proprio"].shape == (13,)
         assert fresh.health().steps == 1
+    robot.connect()  # the old client comes back too, once the new one has released the robot
+    robot.reset(seed=1)
+    robot.step(MOVE)
+    assert robot.health().state == "ok"
+    robot.close()
     assert restarted.stop() == 0
 
 

@@ -67,6 +67,19 @@ class _Channel:
         self._sock.close(0)
 
 
+def query(address: str, timeout_s: float = 1.0) -> tuple[RobotSpec, Health]:
+    """A served robot's spec and health without claiming it (for inventories); RobotDisconnected if silent."""
+    ctx = zmq.Context()
+    chan = _Channel(ctx, address, f"query-{uuid.uuid4().hex[:12]}")
+    try:
+        spec = RobotSpec.from_dict(chan.call("spec", None, timeout_s))
+        health = chan.call("health", None, timeout_s)
+    finally:
+        chan.close()
+        ctx.term()
+    return spec, Health(**{f.name: health[f.name] for f in dataclasses.fields(Health)})
+
+
 class RobotClient(Robot):
     """A Robot whose calls go to a robot server at ``address`` (``tcp://host:port``)."""
 
@@ -79,7 +92,7 @@ class RobotClient(Robot):
         self.timeout_s = float(timeout_s)
         self.lease_s = float(lease_s)
         self.heartbeat_s = lease_s / 3 if heartbeat_s is None else float(heartbeat_s)
-        self._ctx = zmq.Context()
+        self._ctx: zmq.Context | None = None
         self._chan: _Channel | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -91,8 +104,11 @@ class RobotClient(Robot):
 
     # ---------------------------------------------------------------------------------------------
     def connect(self) -> None:
-        """Fetches the spec and claims the robot (raises RobotClaimed if another client holds it)."""
+        """Fetches the spec and claims the robot (raises RobotClaimed if another client holds it).
+
+        Also the way back after RobotDisconnected or close(): e.g. once a restarted server is up."""
         if self._chan is None:
+            self._ctx = zmq.Context()
             self._chan = _Channel(self._ctx, self.address, self.client_id)
         self.spec = RobotSpec.from_dict(self._call("spec", None))
         self._call("claim", {"lease_s": self.lease_s})
@@ -148,8 +164,8 @@ class RobotClient(Robot):
                     pass
             self._chan.close()
             self._chan = None
-        if not self._ctx.closed:
             self._ctx.term()
+            self._ctx = None
 
     # ---------------------------------------------------------------------------------------------
     def _spec(self) -> RobotSpec:
