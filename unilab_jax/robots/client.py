@@ -183,6 +183,9 @@ class RobotClient(Robot):
                 self._timeouts += 1
                 self._disconnected = True
                 raise
+            except Exception:
+                self._disconnected = False  # an error reply: the server is there
+                raise
         self._disconnected = False
         return result
 
