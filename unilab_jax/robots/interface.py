@@ -30,7 +30,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-ACTION_DIM = 7
+ACTION_LAYOUT = ("dx", "dy", "dz", "rx", "ry", "rz", "gripper")  # see the module docstring
+ACTION_DIM = len(ACTION_LAYOUT)
 HEALTH_STATES = ("ok", "estopped", "faulted", "disconnected")
 
 

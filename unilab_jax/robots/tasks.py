@@ -112,7 +112,7 @@ class PegInsertion(RobotTask):
     of a block placed at random on the table."""
 
     name = "peg_insertion"
-    episode_length = 60
+    episode_length = 100
     state_dim = 6
     arms = ("franka", "ur5e")
     grip_closed_at_reset = True
