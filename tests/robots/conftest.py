@@ -12,6 +12,7 @@ import time
 
 import pytest
 
+from unilab_jax.robots.client import RobotClient
 from unilab_jax.robots.gl import find_gl_backend
 
 START_TIMEOUT_S = 60.0
@@ -32,8 +33,8 @@ class ServerProcess:
             self.stop()
             raise RuntimeError(f"robot server {args} did not start within {START_TIMEOUT_S} s") from None
         if not line.startswith("serving "):
-            self.stop()
-            raise RuntimeError(f"robot server {args} failed: {line!r} {self.proc.stderr.read()[-2000:]}")
+            self.stop(read_stderr=True)
+            raise RuntimeError(f"robot server {args} failed: {line!r} {self.stderr_tail}")
         self.address = line.split(" on ")[1].strip()
         self.port = int(self.address.rsplit(":", 1)[1])
 
@@ -41,14 +42,16 @@ class ServerProcess:
         self.proc.kill()
         self.proc.wait(10)
 
-    def stop(self) -> int:
-        """SIGTERM, then SIGKILL after 5 s; returns the exit status."""
+    def stop(self, read_stderr: bool = False) -> int:
+        """SIGTERM, then SIGKILL after 5 s; returns the exit status (``read_stderr``: keep its tail)."""
         if self.proc.poll() is None:
             self.proc.terminate()
             try:
                 self.proc.wait(5)
             except subprocess.TimeoutExpired:
                 self.kill()
+        if read_stderr:
+            self.stderr_tail = self.proc.stderr.read()[-2000:]
         for stream in (self.proc.stdout, self.proc.stderr):
             stream.close()
         return self.proc.returncode
@@ -68,6 +71,22 @@ def serve():
     for server in started:
         with contextlib.suppress(Exception):
             server.stop()
+
+
+@pytest.fixture
+def client():
+    """``client(address, **kw) -> RobotClient`` (not connected); every one is closed at teardown, so a
+    failing test leaves no heartbeat thread or socket behind."""
+    made: list[RobotClient] = []
+
+    def make(address: str, **kw) -> RobotClient:
+        made.append(RobotClient(address, **kw))
+        return made[-1]
+
+    yield make
+    for c in made:
+        with contextlib.suppress(Exception):
+            c.close()
 
 
 @pytest.fixture(scope="session")

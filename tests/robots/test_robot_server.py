@@ -72,11 +72,11 @@ def test_malformed_and_oversized_messages_get_error_replies():
             assert robot.step(HOLD).obs["proprio"].shape == (13,)
 
 
-def test_second_client_is_refused_until_release_or_lease_expiry():
+def test_second_client_is_refused_until_release_or_lease_expiry(client):
     with thread_server() as server:
-        first = RobotClient(server.address, client_id="first", lease_s=0.6, heartbeat_s=0.1)
+        first = client(server.address, client_id="first", lease_s=0.6, heartbeat_s=0.1)
         first.connect()
-        second = RobotClient(server.address, client_id="second", timeout_s=1.0)
+        second = client(server.address, client_id="second", timeout_s=1.0)
         with pytest.raises(RobotClaimed, match="claimed by client 'first'"):
             second.connect()
         time.sleep(1.0)  # the heartbeat keeps the lease alive while the first client idles
@@ -95,7 +95,7 @@ def test_second_client_is_refused_until_release_or_lease_expiry():
         second.step(HOLD)
         second.close()
 
-        quiet = RobotClient(server.address, client_id="quiet", lease_s=0.3, heartbeat_s=0)
+        quiet = client(server.address, client_id="quiet", lease_s=0.3, heartbeat_s=0)
         quiet.connect()
         quiet.reset(seed=0)
         time.sleep(0.6)  # no heartbeat: the lease ends and the arm is stopped
@@ -108,9 +108,9 @@ def test_second_client_is_refused_until_release_or_lease_expiry():
         quiet.close()
 
 
-def test_dropped_reply_raises_robot_disconnected():
+def test_dropped_reply_raises_robot_disconnected(client):
     with thread_server(faults=FaultConfig(drop_reply_prob=1.0)) as server:
-        robot = RobotClient(server.address, timeout_s=0.3, heartbeat_s=0)
+        robot = client(server.address, timeout_s=0.3, heartbeat_s=0)
         t = time.perf_counter()
         with pytest.raises(RobotDisconnected, match="did not answer 'spec'"):
             robot.connect()
@@ -119,9 +119,9 @@ def test_dropped_reply_raises_robot_disconnected():
         robot.close()
 
 
-def test_stalled_server_raises_robot_disconnected():
+def test_stalled_server_raises_robot_disconnected(client):
     with thread_server(faults=FaultConfig(stall_after_steps=2)) as server:
-        robot = RobotClient(server.address, timeout_s=0.3, heartbeat_s=0)
+        robot = client(server.address, timeout_s=0.3, heartbeat_s=0)
         robot.connect()
         robot.reset(seed=0)
         robot.step(HOLD)
@@ -132,9 +132,9 @@ def test_stalled_server_raises_robot_disconnected():
         robot.close()
 
 
-def test_killed_server_disconnects_client_promptly_and_restart_accepts_a_new_client(serve):
+def test_killed_server_disconnects_client_promptly_and_restart_accepts_a_new_client(serve, client):
     server = serve("--robot=franka", "--task=pick_place", "--port=0", *FAST)
-    robot = RobotClient(server.address, timeout_s=0.5)
+    robot = client(server.address, timeout_s=0.5)
     robot.connect()
     robot.reset(seed=0)
     for _ in range(3):
