@@ -46,6 +46,8 @@ class _Channel:
         self._sock.connect(self.address)
 
     def call(self, op: str, args: dict[str, Any] | None, timeout_s: float) -> Any:
+        if timeout_s <= 0:  # nothing is sent that could still act after the caller gave up
+            raise RobotDisconnected(f"robot server {self.address}: no time left to send {op!r}")
         req_id = next(self._ids)
         self._sock.send(protocol.request(op, req_id, self.client_id, args))
         deadline = time.monotonic() + timeout_s
@@ -174,18 +176,27 @@ class RobotClient(Robot):
         return self.spec
 
     def _call(self, op: str, args: dict[str, Any] | None, extra_s: float = 0.0, timeout_s: float | None = None):
+        """One request; the deadline covers waiting for a heartbeat in flight too, so a dead server is
+        reported within ``timeout_s + extra_s`` of the call."""
         if self._chan is None:
             raise RobotError("call connect() first")
-        with self._lock:
-            try:
-                result = self._chan.call(op, args, (timeout_s or self.timeout_s) + extra_s)
-            except RobotDisconnected:
-                self._timeouts += 1
-                self._disconnected = True
-                raise
-            except Exception:
-                self._disconnected = False  # an error reply: the server is there
-                raise
+        budget = (timeout_s or self.timeout_s) + extra_s
+        start = time.monotonic()
+        if not self._lock.acquire(timeout=budget):
+            self._timeouts += 1
+            self._disconnected = True
+            raise RobotDisconnected(f"robot server {self.address}: {op!r} could not be sent within {budget:.2f} s")
+        try:
+            result = self._chan.call(op, args, budget - (time.monotonic() - start))
+        except RobotDisconnected:
+            self._timeouts += 1
+            self._disconnected = True
+            raise
+        except Exception:
+            self._disconnected = False  # an error reply: the server is there
+            raise
+        finally:
+            self._lock.release()
         self._disconnected = False
         return result
 
