@@ -1,0 +1,147 @@
+"""Hand-computed checks of the robots' pure functions: actions, rotations, IK step, task success, wire format."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from unilab_jax.robots import ik, protocol, scenes
+from unilab_jax.robots.experts import move_action, square_yaw
+from unilab_jax.robots.interface import BadRequest, Health, RobotSpec, check_action
+from unilab_jax.robots.serve import parse_faults
+from unilab_jax.robots.sim import apply_delta, gripper_ctrl, gripper_opening, proprio_vector
+from unilab_jax.robots.tasks import (
+    BinGeometry,
+    PegGeometry,
+    in_bin,
+    peg_dense_reward,
+    peg_success,
+    pick_place_dense_reward,
+)
+
+
+def _spec(**kw) -> RobotSpec:
+    base = dict(name="r", kind="franka", task="pick_place", proprio_dim=13, privileged_dim=18, cameras=(),
+                image_shape=(64, 64, 3), control_hz=10.0, episode_length=100, max_delta_pos=0.03,
+                max_delta_rot=0.25)
+    return RobotSpec(**{**base, **kw})
+
+
+def test_check_action_clips_and_rejects():
+    assert check_action([2, -3, 0.5, 0, 0, 0, 1]).tolist() == [1, -1, 0.5, 0, 0, 0, 1]
+    with pytest.raises(ValueError, match="shape"):
+        check_action(np.zeros(6))
+    with pytest.raises(ValueError, match="finite"):
+        check_action([np.nan, 0, 0, 0, 0, 0, 0])
+
+
+def test_spec_periods_and_round_trip():
+    spec = _spec(speed=20.0, reset_seconds=2.0)
+    assert spec.period_s == pytest.approx(0.005)
+    assert spec.reset_wall_s == pytest.approx(0.1)
+    assert _spec(speed=math.inf).period_s == 0.0
+    assert RobotSpec.from_dict(spec.to_dict()) == spec
+    with pytest.raises(ValueError, match="image_shape"):
+        _spec(image_shape=(64, 64, 4))
+    with pytest.raises(ValueError, match="health state"):
+        Health("sleeping")
+
+
+def test_rotation_helpers():
+    q = ik.quat_from_rotvec([0.0, 0.0, math.pi / 2])
+    assert q == pytest.approx([math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)])
+    assert ik.yaw_of_quat(q) == pytest.approx(math.pi / 2)
+    # error from identity to q is q's rotation vector
+    assert ik.quat_error(q, np.array([1.0, 0, 0, 0])) == pytest.approx([0, 0, math.pi / 2])
+    assert ik.quat_error(q, q) == pytest.approx([0, 0, 0])
+    # q and -q are the same rotation: the error takes the short way
+    assert ik.quat_error(-q, q) == pytest.approx([0, 0, 0], abs=1e-12)
+    assert square_yaw(math.radians(100)) == pytest.approx(math.radians(10))
+    assert square_yaw(math.radians(-50)) == pytest.approx(math.radians(40))
+
+
+def test_dls_step_matches_the_formula():
+    jac = np.array([[1.0, 0.0], [0.0, 2.0]])
+    err = np.array([1.0, 1.0])
+    # J^T (J J^T + l^2 I)^-1 e with l = 1: [1/(1+1), 2/(4+1)]
+    assert ik.dls_step(jac, err, 1.0) == pytest.approx([0.5, 0.4])
+
+
+def test_apply_delta_scales_clips_and_rotates():
+    quat = np.array(scenes.HOME_TCP_QUAT)
+    pos, q = apply_delta(np.array([0.5, 0.0, 0.2]), quat, np.array([1, -0.5, 0, 0, 0, 1, 0.0]), 0.03, 0.25)
+    assert pos == pytest.approx([0.53, -0.015, 0.2])
+    assert ik.quat_error(q, quat) == pytest.approx([0, 0, 0.25])
+    low, _ = apply_delta(np.array([0.5, 0.0, 0.01]), quat, np.array([0, 0, -1, 0, 0, 0, 0.0]), 0.03, 0.25)
+    assert low[2] == pytest.approx(0.005)  # floor of the workspace
+
+
+def test_gripper_mapping():
+    franka, ur5e = scenes.ARMS["franka"], scenes.ARMS["ur5e"]
+    assert gripper_ctrl(-1.0, franka) == 255.0 and gripper_ctrl(1.0, franka) == 0.0
+    assert gripper_ctrl(-1.0, ur5e) == 0.0 and gripper_ctrl(0.0, ur5e) == 127.5
+    assert gripper_opening(np.array([0.02]), franka) == pytest.approx(0.5)
+    assert gripper_opening(np.array([0.8]), ur5e) == pytest.approx(0.0)
+
+
+def test_proprio_layout():
+    v = proprio_vector(np.array([1.0, 2, 3]), np.eye(3), np.array([4.0, 5, 6]), 0.25)
+    assert v.tolist() == [1, 2, 3, 1, 0, 0, 0, 1, 0, 4, 5, 6, 0.25]
+
+
+def test_peg_success_and_reward():
+    g = PegGeometry()
+    hole = np.array([0.5, 0.0, 0.05])
+    assert peg_success(np.array([0.501, -0.001, 0.029]), hole, g)
+    assert not peg_success(np.array([0.501, 0.0, 0.031]), hole, g)  # not deep enough
+    assert not peg_success(np.array([0.512, 0.0, 0.0]), hole, g)  # outside the 11.5 mm half width
+    assert peg_dense_reward(np.array([0.5, 0.0, 0.03]), hole, g) == pytest.approx(1.0)
+
+
+def test_in_bin():
+    g = BinGeometry()
+    b = np.array([0.48, -0.23, 0.0])
+    assert in_bin(np.array([0.5, -0.2, 0.03]), b, g)
+    assert not in_bin(np.array([0.5, -0.2, 0.06]), b, g)  # above the walls
+    assert not in_bin(np.array([0.56, -0.2, 0.03]), b, g)  # 8 cm off-centre, walls at 7 cm
+
+
+def test_pick_place_dense_reward():
+    g = BinGeometry()
+    b = np.array([0.5, -0.2, 0.0])
+    held_over_bin = np.array([0.5, -0.2, 0.1])
+    assert pick_place_dense_reward(held_over_bin, held_over_bin, b, g) == pytest.approx(1.0)
+    # on the table, 0.1 m from the tcp: only the reaching term, 1 - tanh(1)
+    obj = np.array([0.5, 0.1, 0.02])
+    assert pick_place_dense_reward(obj, obj + [0.0, 0.0, 0.1], b, g) == pytest.approx((1 - math.tanh(1.0)) / 3)
+
+
+def test_move_action_is_proportional_and_clipped():
+    spec = _spec()
+    quat = np.array(scenes.HOME_TCP_QUAT)
+    a = move_action(np.zeros(3), quat, np.array([0.015, -0.3, 0.0]), quat, 1.0, spec)
+    assert a.tolist() == pytest.approx([0.5, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+
+
+def test_wire_format_round_trip_and_rejects():
+    tree = {"a": np.arange(6, dtype=np.float32).reshape(2, 3), "img": np.zeros((4, 4, 3), np.uint8),
+            "n": np.float64(1.5), "s": "x", "l": [1, True, None]}
+    back = protocol.unpack(protocol.pack(tree))
+    assert back["a"].dtype == np.float32 and back["a"].tolist() == tree["a"].tolist()
+    assert back["img"].shape == (4, 4, 3) and back["n"] == 1.5 and back["l"] == [1, True, None]
+    with pytest.raises(BadRequest, match="undecodable"):
+        protocol.unpack(b"\xc1garbage")
+    with pytest.raises(TypeError):
+        protocol.pack({"o": np.array([object()])})
+    with pytest.raises(BadRequest, match="a request must be a map"):
+        protocol.parse_request([1, 2])
+    with pytest.raises(BadRequest, match="non-empty client"):
+        protocol.parse_request({"op": "step", "id": 1, "client": ""})
+
+
+def test_parse_faults():
+    assert parse_faults(["drop:0.5", "exit_after:3"]) == {"drop_reply_prob": 0.5, "exit_after_steps": 3}
+    with pytest.raises(ValueError, match="bad --fault"):
+        parse_faults(["explode:1"])

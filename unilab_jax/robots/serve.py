@@ -1,0 +1,97 @@
+"""Starts one robot server process::
+
+    python -m unilab_jax.robots.serve --robot=franka --task=pick_place --port=5555 [--speed=1]
+        [--latency_ms=20 --jitter_ms=5] [--cameras=front,wrist | --cameras=none] [--image_size=64]
+        [--fault=drop:0.1] [--fault=stall_after:50] [--fault=exit_after:30]
+
+Prints ``serving NAME on tcp://HOST:PORT`` (flushed) once it accepts requests (``--port=0``: a free
+port), and exits cleanly on SIGTERM / SIGINT. With cameras and no ``MUJOCO_GL`` set, the first backend of
+``robots.gl.CANDIDATES`` that renders is used (egl works with software Mesa, no display needed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import threading
+
+from unilab_jax.robots.gl import find_gl_backend
+
+
+def parse_faults(items: list[str]) -> dict[str, float | int]:
+    """``["drop:0.1", "exit_after:30"]`` -> FaultConfig keyword arguments."""
+    names = {"drop": ("drop_reply_prob", float), "stall_after": ("stall_after_steps", int),
+             "exit_after": ("exit_after_steps", int)}
+    out: dict[str, float | int] = {}
+    for item in items:
+        kind, _, value = item.partition(":")
+        if kind not in names or not value:
+            raise ValueError(f"bad --fault {item!r}: use drop:P, stall_after:N or exit_after:N")
+        field, typ = names[kind]
+        out[field] = typ(value)
+    return out
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m unilab_jax.robots.serve", description=__doc__.split("::")[0])
+    p.add_argument("--robot", required=True, help="arm: franka or ur5e")
+    p.add_argument("--task", required=True, help="peg_insertion or pick_place")
+    p.add_argument("--name", default="", help="robot name (default ARM_TASK)")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=0)
+    p.add_argument("--speed", type=float, default=1.0, help="wall-clock speed-up of the control loop")
+    p.add_argument("--latency_ms", type=float, default=0.0, help="actuator latency (simulated ms)")
+    p.add_argument("--jitter_ms", type=float, default=0.0, help="std of the extra |normal| latency (ms)")
+    p.add_argument("--noise", type=float, default=0.001, help="std of the proprioceptive noise")
+    p.add_argument("--cameras", default="front,wrist", help="comma-separated camera names, or none")
+    p.add_argument("--image_size", type=int, default=64)
+    p.add_argument("--reset_s", type=float, default=2.0, help="reset duration at speed 1 (s)")
+    p.add_argument("--dense_reward", action="store_true")
+    p.add_argument("--lease_s", type=float, default=5.0)
+    p.add_argument("--max_message_bytes", type=int, default=1 << 20)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--fault", action="append", default=[], help="drop:P | stall_after:N | exit_after:N")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    cameras = () if args.cameras in ("", "none") else tuple(args.cameras.split(","))
+    if cameras and "MUJOCO_GL" not in os.environ:  # must be set before mujoco is imported
+        backend, reasons = find_gl_backend()
+        if backend is None:
+            print(f"error: no offscreen GL backend for the cameras ({'; '.join(reasons)}); use --cameras=none",
+                  file=sys.stderr)
+            return 2
+        os.environ["MUJOCO_GL"] = backend
+    from unilab_jax.robots.server import FaultConfig, RobotServer, ServerConfig
+    from unilab_jax.robots.sim import SimConfig, SimRobot
+
+    try:
+        sim = SimConfig(arm=args.robot, task=args.task, name=args.name, speed=args.speed,
+                        latency_s=args.latency_ms / 1000, jitter_s=args.jitter_ms / 1000, proprio_noise=args.noise,
+                        cameras=cameras, image_size=args.image_size, reset_seconds=args.reset_s,
+                        dense_reward=args.dense_reward, seed=args.seed)
+        faults = FaultConfig(**parse_faults(args.fault))
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    robot = SimRobot(sim)
+    robot.connect()
+    server = RobotServer(robot, ServerConfig(host=args.host, port=args.port, lease_s=args.lease_s,
+                                             max_message_bytes=args.max_message_bytes, faults=faults, seed=args.seed))
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    print(f"serving {robot.spec.name} on {server.address}", flush=True)
+    try:
+        server.serve(stop)
+    finally:
+        robot.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

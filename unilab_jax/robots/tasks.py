@@ -1,0 +1,248 @@
+"""Manipulation tasks of the RLinf-USER kind: peg insertion and pick-and-place into a bin.
+
+A task adds its objects to an arm's MjSpec (``build``), finds them in the compiled model (``bind``),
+places them at random at each reset (``randomize``) and reads the privileged state the reward and the
+scripted experts need (``state``). Reward and success are pure numpy functions of that state
+(``reward``), so they can be tested with hand-made numbers. The robot owns the MjModel / MjData.
+
+State vectors (float64, world frame, metres):
+
+* ``peg_insertion``: ``[tip (3), hole (3)]``: the peg's tip; the centre of the hole's opening.
+* ``pick_place``: ``[object (3), object quat (4), bin (3)]``: the cube's centre and orientation;
+  the centre of the bin's floor.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+
+import mujoco
+import numpy as np
+
+from unilab_jax.robots.ik import yaw_of_quat
+from unilab_jax.robots.scenes import ARMS
+
+# Collision bits: 1 = everything by default; 2 = the held peg, which touches only the block and floor.
+_PEG_BIT = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class PegGeometry:
+    peg_half: float = 0.01  # square peg, half width
+    peg_length: float = 0.08
+    peg_offset: float = 0.02  # peg centre beyond the tcp along the approach axis
+    clearance: float = 0.0015  # per side
+    block_half: float = 0.04
+    block_height: float = 0.05
+    depth: float = 0.02  # insertion depth counted as success
+
+    @property
+    def hole_half(self) -> float:
+        return self.peg_half + self.clearance
+
+    @property
+    def tip_offset(self) -> float:
+        """Distance from the tcp to the peg tip along the approach axis."""
+        return self.peg_offset + self.peg_length / 2
+
+
+@dataclasses.dataclass(frozen=True)
+class BinGeometry:
+    cube_half: float = 0.02
+    cube_mass: float = 0.05
+    bin_half: float = 0.07  # inner half width
+    wall_height: float = 0.05
+    wall_half_thickness: float = 0.005
+
+
+class RobotTask(abc.ABC):
+    """One task on one arm. Subclasses set ``name``, ``episode_length``, ``state_dim``, ``arms``."""
+
+    name: str
+    episode_length: int
+    state_dim: int
+    arms: tuple[str, ...]
+    grip_closed_at_reset: bool = False
+
+    def __init__(self, kind: str, dense_reward: bool):
+        if kind not in self.arms:
+            raise ValueError(f"task {self.name!r} supports arms {self.arms}, not {kind!r}")
+        self.kind = kind
+        self.dense_reward = bool(dense_reward)
+
+    @abc.abstractmethod
+    def build(self, spec: mujoco.MjSpec) -> None:
+        """Adds the task's bodies to the arm scene."""
+
+    @abc.abstractmethod
+    def bind(self, model: mujoco.MjModel) -> None:
+        """Looks up the task's ids in the compiled model."""
+
+    @abc.abstractmethod
+    def randomize(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None:
+        """Places the objects for a new episode (before ``mj_forward``)."""
+
+    @abc.abstractmethod
+    def state(self, model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+        """Privileged task state [state_dim] (see the module docstring)."""
+
+    @abc.abstractmethod
+    def reward(self, state: np.ndarray, tcp: np.ndarray) -> tuple[float, bool]:
+        """(reward, success) from the task state and the tcp position [3]."""
+
+
+# --------------------------------------------------------------------------------------------------
+# Peg insertion
+# --------------------------------------------------------------------------------------------------
+def peg_success(tip: np.ndarray, hole: np.ndarray, g: PegGeometry) -> bool:
+    """The tip is inside the hole's footprint and at least ``g.depth`` below its opening."""
+    inside = bool(np.all(np.abs(tip[:2] - hole[:2]) < g.hole_half))
+    return inside and bool(tip[2] < hole[2] - g.depth)
+
+
+def peg_dense_reward(tip: np.ndarray, hole: np.ndarray, g: PegGeometry) -> float:
+    """In [0, 1]: closeness of the tip to the bottom of the required insertion."""
+    goal = hole - np.array([0.0, 0.0, g.depth])
+    return float(1.0 - np.tanh(10.0 * np.linalg.norm(tip - goal)))
+
+
+class PegInsertion(RobotTask):
+    """A square peg held rigidly in the closed gripper goes into a hole (1.5 mm clearance per side)
+    of a block placed at random on the table."""
+
+    name = "peg_insertion"
+    episode_length = 100
+    state_dim = 6
+    arms = ("franka", "ur5e")
+    grip_closed_at_reset = True
+    block_x = (0.42, 0.58)
+    block_y = (-0.12, 0.12)
+
+    def __init__(self, kind: str, dense_reward: bool = False, geometry: PegGeometry = PegGeometry()):
+        super().__init__(kind, dense_reward)
+        self.g = geometry
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        g = self.g
+        arm = ARMS[self.kind]
+        tcp = np.array(arm.tcp_local)
+        peg = spec.body(arm.hand_body).add_body(name="peg", pos=list(tcp + [0, 0, g.peg_offset]))
+        peg.add_geom(name="peg", type=mujoco.mjtGeom.mjGEOM_BOX, size=[g.peg_half, g.peg_half, g.peg_length / 2],
+                     mass=0.05, contype=_PEG_BIT, conaffinity=_PEG_BIT, rgba=[0.85, 0.45, 0.1, 1.0])
+        peg.add_site(name="peg_tip", pos=[0, 0, g.peg_length / 2], size=[0.003] * 3, group=5)
+        spec.geom("floor").conaffinity = 1 | _PEG_BIT
+        block = spec.worldbody.add_body(name="block", mocap=True, pos=[0.5, 0.0, 0.0])
+        h, b, height = g.hole_half, g.block_half, g.block_height
+        wall = (b - h) / 2
+        for i, (x, y, sx, sy) in enumerate([(h + wall, 0.0, wall, b), (-h - wall, 0.0, wall, b),
+                                            (0.0, h + wall, h, wall), (0.0, -h - wall, h, wall)]):
+            block.add_geom(name=f"block{i}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[x, y, height / 2],
+                           size=[sx, sy, height / 2], contype=1 | _PEG_BIT, conaffinity=1 | _PEG_BIT,
+                           rgba=[0.2, 0.45, 0.75, 1.0])
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        self._tip = model.site("peg_tip").id
+        self._mocap = model.body("block").mocapid[0]
+
+    def randomize(self, model, data, rng):
+        data.mocap_pos[self._mocap] = [rng.uniform(*self.block_x), rng.uniform(*self.block_y), 0.0]
+        data.mocap_quat[self._mocap] = [1.0, 0.0, 0.0, 0.0]
+
+    def state(self, model, data):
+        hole = data.mocap_pos[self._mocap] + [0.0, 0.0, self.g.block_height]
+        return np.concatenate([data.site_xpos[self._tip], hole])
+
+    def reward(self, state, tcp):
+        tip, hole = state[:3], state[3:6]
+        success = peg_success(tip, hole, self.g)
+        base = peg_dense_reward(tip, hole, self.g) if self.dense_reward else 0.0
+        return base + float(success), success
+
+
+# --------------------------------------------------------------------------------------------------
+# Pick and place
+# --------------------------------------------------------------------------------------------------
+def in_bin(obj: np.ndarray, bin_pos: np.ndarray, g: BinGeometry) -> bool:
+    """The object's centre lies inside the bin's walls and below their top."""
+    inside = bool(np.all(np.abs(obj[:2] - bin_pos[:2]) < g.bin_half))
+    return inside and bool(obj[2] < bin_pos[2] + g.wall_height)
+
+
+def pick_place_dense_reward(obj: np.ndarray, tcp: np.ndarray, bin_pos: np.ndarray, g: BinGeometry) -> float:
+    """In [0, 1]: mean of reaching the object, lifting it, and bringing it over the bin once lifted."""
+    reach = 1.0 - np.tanh(10.0 * np.linalg.norm(tcp - obj))
+    lifted = float(obj[2] > 2.5 * g.cube_half)
+    over_bin = 1.0 - np.tanh(5.0 * np.linalg.norm(obj[:2] - bin_pos[:2]))
+    return float((reach + lifted + lifted * over_bin) / 3.0)
+
+
+class PickPlace(RobotTask):
+    """A small cube at a random position and yaw goes into a bin (placed at random near a fixed spot)."""
+
+    name = "pick_place"
+    episode_length = 100
+    state_dim = 10
+    arms = ("franka", "ur5e")
+    object_x = (0.4, 0.58)
+    object_y = (-0.02, 0.16)
+    bin_x = (0.44, 0.52)
+    bin_y = (-0.26, -0.2)
+
+    def __init__(self, kind: str, dense_reward: bool = False, geometry: BinGeometry = BinGeometry()):
+        super().__init__(kind, dense_reward)
+        self.g = geometry
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        g = self.g
+        cube = spec.worldbody.add_body(name="object", pos=[0.5, 0.05, g.cube_half])
+        cube.add_freejoint(name="object")
+        cube.add_geom(name="object", type=mujoco.mjtGeom.mjGEOM_BOX, size=[g.cube_half] * 3, mass=g.cube_mass,
+                      friction=[1.0, 0.01, 0.001], rgba=[0.85, 0.15, 0.15, 1.0])
+        bin_body = spec.worldbody.add_body(name="bin", mocap=True, pos=[0.48, -0.23, 0.0])
+        t, h, hw = g.wall_half_thickness, g.bin_half, g.wall_height / 2
+        bin_body.add_geom(name="bin_floor", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[0, 0, t],
+                          size=[h + 2 * t, h + 2 * t, t], rgba=[0.3, 0.6, 0.3, 1.0])
+        for i, (x, y, sx, sy) in enumerate([(h + t, 0, t, h + 2 * t), (-h - t, 0, t, h + 2 * t),
+                                            (0, h + t, h, t), (0, -h - t, h, t)]):
+            bin_body.add_geom(name=f"bin_wall{i}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[x, y, hw], size=[sx, sy, hw],
+                              rgba=[0.3, 0.6, 0.3, 1.0])
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        joint = model.joint("object")
+        self._qpos = joint.qposadr[0]
+        self._dof = joint.dofadr[0]
+        self._body = model.body("object").id
+        self._mocap = model.body("bin").mocapid[0]
+
+    def randomize(self, model, data, rng):
+        yaw = rng.uniform(-np.pi / 4, np.pi / 4)
+        data.qpos[self._qpos:self._qpos + 3] = [rng.uniform(*self.object_x), rng.uniform(*self.object_y),
+                                                self.g.cube_half]
+        data.qpos[self._qpos + 3:self._qpos + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+        data.qvel[self._dof:self._dof + 6] = 0.0
+        data.mocap_pos[self._mocap] = [rng.uniform(*self.bin_x), rng.uniform(*self.bin_y), 0.0]
+
+    def state(self, model, data):
+        return np.concatenate([data.xpos[self._body], data.xquat[self._body], data.mocap_pos[self._mocap]])
+
+    def reward(self, state, tcp):
+        obj, bin_pos = state[:3], state[7:10]
+        success = in_bin(obj, bin_pos, self.g)
+        base = pick_place_dense_reward(obj, tcp, bin_pos, self.g) if self.dense_reward else 0.0
+        return base + float(success), success
+
+
+def object_yaw(state: np.ndarray) -> float:
+    """Yaw of the pick-and-place cube from its state vector (radians)."""
+    return yaw_of_quat(state[3:7])
+
+
+TASKS: dict[str, type[RobotTask]] = {PegInsertion.name: PegInsertion, PickPlace.name: PickPlace}
+
+
+def make_task(name: str, kind: str, dense_reward: bool = False) -> RobotTask:
+    """Task ``name`` (a key of TASKS) for arm ``kind``."""
+    if name not in TASKS:
+        raise ValueError(f"unknown robot task {name!r}; choose one of {sorted(TASKS)}")
+    return TASKS[name](kind, dense_reward)
