@@ -27,7 +27,7 @@ LAYERS = [
     ("unilab_jax.fields", 1), ("unilab_jax.lazy", 1), ("unilab_mlx", 1), ("unilab_mlx.*", 1),
     # L2: tasks, the runtime (workers load the algorithm declaration by module path) and checkpoints
     ("tasks", 2), ("tasks.*", 2), ("unilab_jax.runtime", 2), ("unilab_jax.runtime.*", 2),
-    ("unilab_jax.checkpoint", 2),
+    ("unilab_jax.checkpoint", 2), ("unilab_jax.robots", 2), ("unilab_jax.robots.*", 2),
     # L4: learners (above the declarations they import)
     ("unilab_jax.algos.*.learner_*", 4), ("unilab_jax.algos.ppo.him_ppo_jax", 4),
     # L3: algorithm declarations (config, act, losses), one folder per family
