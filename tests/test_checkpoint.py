@@ -1,28 +1,12 @@
 """Orbax checkpoints of the whole training state: exact round trip, named mismatches."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-import optax
 import pytest
+from ckpt_helpers import to_jax as _to_jax
+from ckpt_helpers import train_state as _state
 
-from unilab_jax import nets
-from unilab_jax import xp as shim
 from unilab_jax.checkpoint import Checkpointer, CheckpointMismatchError
-
-
-def _state(sizes, seed=0):
-    xp = shim.get("jax")
-    params = nets.init(xp.random.key(seed), sizes)
-    tx = optax.chain(optax.clip_by_global_norm(1.0), optax.inject_hyperparams(optax.adam)(learning_rate=1e-3))
-    opt = tx.init(params)
-    grads = jax.tree_util.tree_map(jnp.ones_like, params)
-    _, opt = tx.update(grads, opt, params)
-    return {"params": params, "opt": opt, "key": jax.random.PRNGKey(seed), "count": jnp.int32(7)}
-
-
-def _to_jax(a, like):
-    return jnp.asarray(a, dtype=like.dtype)
 
 
 def test_round_trip_is_bitwise(tmp_path):

@@ -41,3 +41,27 @@ def assert_close(actual: Any, expected: Any, rtol: float = 1e-5, atol: float = 1
     for a, e in zip(a_leaves, e_leaves):
         np.testing.assert_allclose(np.asarray(a, dtype=np.float64), np.asarray(e, dtype=np.float64),
                                    rtol=rtol, atol=atol)
+
+
+def episode_rollout(rng: np.random.Generator, t: int, b: int, p_term: float, p_trunc: float,
+                    final_value_scale: float) -> tuple[np.ndarray, ...]:
+    """A contiguous [t, b] rollout: ``next_values[i] == v_ext[i+1]`` unless the episode ended at ``i``,
+    where the true successor is a final observation with its own value. Returns float64 ``v_ext``
+    [t+1, b], ``rewards``, ``next_values`` and bool ``terminated``, ``truncated`` (disjoint)."""
+    v_ext = rng.normal(size=(t + 1, b))
+    rewards = rng.normal(size=(t, b))
+    terminated = rng.random((t, b)) < p_term
+    truncated = (rng.random((t, b)) < p_trunc) & ~terminated
+    next_values = np.where(terminated | truncated, rng.normal(size=(t, b)) * final_value_scale, v_ext[1:])
+    return v_ext, rewards, next_values, terminated, truncated
+
+
+def episode_segments(done: np.ndarray):
+    """(b, start, end, pad) of every episode segment of a [T, B] ``done`` mask, column by column; ``pad``
+    left-pads a segment to length T (padding before a segment cannot reach it in a backward recursion)."""
+    t_len, b_len = done.shape
+    for b in range(b_len):
+        ends = [t + 1 for t in range(t_len) if done[t, b]]
+        for s, e in zip([0] + ends, ends + [t_len]):
+            if s < e:
+                yield b, s, e, t_len - (e - s)

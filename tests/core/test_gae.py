@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from core_helpers import assert_close, f32
+from core_helpers import assert_close, episode_rollout, episode_segments, f32
 
 from unilab_jax import xp as shim
 from unilab_jax.core.gae import gae
@@ -18,14 +18,8 @@ T, B = 24, 8
 
 def _rollout(seed: int, p_term: float = 0.1, p_trunc: float = 0.0):
     """A contiguous rollout: next_values[t] == values[t+1] unless the episode ended at t."""
-    rng = np.random.default_rng(seed)
-    v_ext = rng.normal(size=(T + 1, B))
-    rewards = rng.normal(size=(T, B))
-    terminated = rng.random((T, B)) < p_term
-    truncated = (rng.random((T, B)) < p_trunc) & ~terminated
-    done = terminated | truncated
-    # Where the episode ended, the true successor is a final observation with its own value.
-    next_values = np.where(done, rng.normal(size=(T, B)) * 3.0, v_ext[1:])
+    v_ext, rewards, next_values, terminated, truncated = episode_rollout(np.random.default_rng(seed), T, B, p_term,
+                                                                        p_trunc, final_value_scale=3.0)
     return f32(rewards, v_ext[:-1], next_values) + (terminated, truncated, v_ext)
 
 
@@ -95,16 +89,9 @@ def test_gae_with_truncation_matches_loop_and_rlax_segments():
     # are left-padded to length T (padding before a segment cannot reach it in a backward recursion)
     # and batched through one vmapped call.
     done = terminated | truncated
-    rows, where = [], []
-    for b in range(B):
-        ends = [t + 1 for t in range(T) if done[t, b]]
-        for s, e in zip([0] + ends, ends + [T]):
-            if s < e:
-                pad = T - (e - s)
-                rows.append((np.pad(rewards[s:e, b], (pad, 0)),
-                             np.pad(gamma * (1.0 - terminated[s:e, b]), (pad, 0)),
-                             np.pad(np.concatenate([values[s:e, b], next_values[e - 1:e, b]]), (pad, 0))))
-                where.append((b, s, e, pad))
+    where = list(episode_segments(done))
+    rows = [(np.pad(rewards[s:e, b], (pad, 0)), np.pad(gamma * (1.0 - terminated[s:e, b]), (pad, 0)),
+             np.pad(np.concatenate([values[s:e, b], next_values[e - 1:e, b]]), (pad, 0))) for b, s, e, pad in where]
     r, d, v = (jnp.asarray(np.stack(x), jnp.float32) for x in zip(*rows))
     ref = jax.jit(jax.vmap(lambda r, d, v: rlax.truncated_generalized_advantage_estimation(r, d, lam, v)))
     seg = np.asarray(ref(r, d, v))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from core_helpers import assert_close, f32
+from core_helpers import assert_close, episode_rollout, episode_segments, f32
 
 from unilab_jax import xp as shim
 from unilab_jax.core.vtrace import appo_loss, vtrace
@@ -19,12 +19,8 @@ GAMMA = 0.98
 
 def _rollout(seed: int, p_term: float = 0.1, p_trunc: float = 0.0):
     rng = np.random.default_rng(seed)
-    v_ext = rng.normal(size=(T + 1, B))
-    rewards = rng.normal(size=(T, B))
-    terminated = rng.random((T, B)) < p_term
-    truncated = (rng.random((T, B)) < p_trunc) & ~terminated
-    done = terminated | truncated
-    next_values = np.where(done, rng.normal(size=(T, B)) * 2.0, v_ext[1:])
+    v_ext, rewards, next_values, terminated, truncated = episode_rollout(rng, T, B, p_term, p_trunc,
+                                                                        final_value_scale=2.0)
     log_rhos = rng.normal(size=(T, B)) * 0.6  # rho spread across both clip thresholds
     discounts = GAMMA * (1.0 - terminated)
     return f32(v_ext[:-1], next_values, rewards, discounts, log_rhos) + (terminated, truncated)
@@ -59,15 +55,9 @@ def test_vtrace_with_truncation_matches_rlax_on_segments():
     vs, pg = vtrace(values, next_values, rewards, discounts, log_rhos, done, lam, clip_rho, clip_pg_rho)
     # rlax per episode segment (left-padded to length T, which cannot affect a backward recursion),
     # all segments in one vmapped call.
-    rows, where = [], []
-    for b in range(B):
-        ends = [t + 1 for t in range(T) if done[t, b]]
-        for s, e in zip([0] + ends, ends + [T]):
-            if s < e:
-                pad = T - (e - s)
-                rows.append([np.pad(a[s:e, b], (pad, 0))
-                             for a in (values, next_values, rewards, discounts, log_rhos)])
-                where.append((b, s, e, pad))
+    where = list(episode_segments(done))
+    rows = [[np.pad(a[s:e, b], (pad, 0)) for a in (values, next_values, rewards, discounts, log_rhos)]
+            for b, s, e, pad in where]
     cols = [np.stack(x) for x in zip(*rows)]
     ref_vs, ref_pg = jax.jit(jax.vmap(lambda *a: _rlax_sequence(*a, lam, clip_rho, clip_pg_rho)))(*cols)
     for i, (b, s, e, pad) in enumerate(where):
