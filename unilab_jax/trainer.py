@@ -345,8 +345,8 @@ class Trainer:
 
     def _hold_window(self, cfg: Any) -> int | None:
         """Env steps the replay workers may run ahead of ``utd``; None in "free" mode. The default, four
-        learner calls' worth (at least four steps of every env), absorbs an update's jitter without
-        pausing workers whose learner keeps pace."""
+        learner calls' worth (at least four steps of every env), absorbs the jitter of a learner that
+        keeps pace on average."""
         if self.run.utd_mode not in ("hold", "free"):
             raise ValueError(f"utd_mode must be hold or free, got {self.run.utd_mode!r}")
         if self.run.utd_mode == "free":
