@@ -46,6 +46,8 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     ("--task_config=no_such_key=1", "unknown config key"),
     ("--task=mars_rover", "registered tasks"),
     ("--total_steps=-5", "--total_steps must be positive"),
+    ("--utd_window=-1", "--utd_window must be >= 0"),
+    ("--utd_window=4096", "--utd_window needs an off-policy algorithm"),
 ])
 def test_invalid_flags_fail_before_workers_start(tmp_path, flag, message):
     out = _run("ppo_cartpole.py", flag, f"--logdir={tmp_path / 'x'}", timeout=120)

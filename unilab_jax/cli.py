@@ -57,6 +57,10 @@ flags.DEFINE_integer("replay_chunk_rows", 0, "with --replay_dir: transitions per
 flags.DEFINE_enum("replay_on_device", "auto", ["auto", "on", "off"], "off-policy, jax learner: keep a copy of the "
                   "replay rings in accelerator memory and sample minibatches there (auto: on unless JAX runs on the "
                   "CPU or --replay_dir is set)")
+flags.DEFINE_enum("utd_mode", "hold", ["hold", "free"], "off-policy: hold pauses the workers when the learner falls "
+                  "more than --utd_window env steps behind the recipe's update-to-data ratio; free never pauses them")
+flags.DEFINE_integer("utd_window", 0, "with --utd_mode=hold: env steps the workers may run ahead of the ratio "
+                     "(0: four learner calls' worth)")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
@@ -112,6 +116,10 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError("--replay_on_device=on needs an off-policy algorithm, --platform=jax and no --replay_dir")
     if not 0.0 <= FLAGS.replay_hot_fraction <= 1.0:
         raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {FLAGS.replay_hot_fraction}")
+    if FLAGS.utd_window < 0:
+        raise FlagError(f"--utd_window must be >= 0, got {FLAGS.utd_window}")
+    if FLAGS.utd_window and (module.BUFFER != "replay" or FLAGS.utd_mode != "hold"):
+        raise FlagError("--utd_window needs an off-policy algorithm and --utd_mode=hold")
     if FLAGS.replay_disk_gb <= 0 or FLAGS.replay_chunk_rows < 0:
         raise FlagError("--replay_disk_gb must be positive and --replay_chunk_rows >= 0")
     batch = config.horizon * FLAGS.num_workers * FLAGS.envs_per_worker
@@ -129,7 +137,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     resume=FLAGS.resume, eval_every=FLAGS.eval_every, eval_envs=FLAGS.eval_envs,
                     checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial, replay_dir=FLAGS.replay_dir,
                     replay_disk_gb=FLAGS.replay_disk_gb, replay_hot_fraction=FLAGS.replay_hot_fraction,
-                    replay_chunk_rows=FLAGS.replay_chunk_rows, replay_on_device=FLAGS.replay_on_device)
+                    replay_chunk_rows=FLAGS.replay_chunk_rows, replay_on_device=FLAGS.replay_on_device,
+                    utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window)
     return run, module, config, task_overrides
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import os
 import queue
 import signal
@@ -68,6 +69,11 @@ class RunConfig:
     # Off-policy, JAX learner: mirror the rings in accelerator memory and sample there (unilab_jax/device_replay.py).
     # "auto": on when JAX's default backend is not the CPU and there is no replay_dir; "on" / "off" force it.
     replay_on_device: str = "auto"
+    # Off-policy: "hold" pauses the workers when the learner falls more than ``utd_window`` env steps behind
+    # the recipe's update-to-data ratio (the same learning per env step on any machine); "free" lets them
+    # run on (a learner slower than ``utd`` x the env rate then trains below the ratio). See _ReplaySource.
+    utd_mode: str = "hold"
+    utd_window: int = 0  # env steps the workers may run ahead of the ratio (0: four learner calls' worth)
 
 
 def _learner_platform(platform: str) -> Any:
@@ -227,6 +233,7 @@ class Trainer:
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
         replay = self.algo.BUFFER == "replay"
+        hold_window = self._hold_window(cfg) if replay else None
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
         store = self._open_replay_store() if replay else None
         pool = WorkerPool(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
@@ -248,10 +255,13 @@ class Trainer:
         progress = ProgressBar(run.total_steps, counters["env_steps"])
         try:
             pool.start(stop=stop.is_set)
-            pool.publish(weights, counters["version"])
+            # The source before the first weights: replay workers wait for them, so a held run's step
+            # limit is in place before any env step.
             source = (_ReplaySource(pool, self.xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
-                                    self._resumed_meta.get("replay"), self._device_replay(pool))
+                                    self._resumed_meta.get("replay"), self._device_replay(pool),
+                                    total_steps=run.total_steps, hold_window=hold_window)
                       if replay else _TrajectorySource(pool, self.xp, self.spec.reward_terms))
+            pool.publish(weights, counters["version"])
             prefetch = _Prefetcher(source.produce, inline=run.serial)
             t_last, steps_last = time.time(), counters["env_steps"]
             while counters["env_steps"] < run.total_steps and not stop.is_set():
@@ -332,6 +342,19 @@ class Trainer:
         """One learner update and its losses as floats (which waits for the update to finish)."""
         state, metrics = self.learner.update(state, batch)
         return state, {f"loss/{k}": float(v) for k, v in metrics.items()}
+
+    def _hold_window(self, cfg: Any) -> int | None:
+        """Env steps the replay workers may run ahead of ``utd``; None in "free" mode. The default, four
+        learner calls' worth (at least four steps of every env), absorbs the jitter of a learner that
+        keeps pace on average."""
+        if self.run.utd_mode not in ("hold", "free"):
+            raise ValueError(f"utd_mode must be hold or free, got {self.run.utd_mode!r}")
+        if self.run.utd_mode == "free":
+            return None
+        if self.run.utd_window < 0:
+            raise ValueError(f"utd_window must be >= 0, got {self.run.utd_window}")
+        return self.run.utd_window or max(4 * math.ceil(cfg.updates_per_call / cfg.utd),
+                                          4 * self.run.num_workers * self.run.envs_per_worker)
 
     def _numpy_weights(self, state: Any) -> dict:
         return nets.to_numpy(self.learner.weights(state))
@@ -591,8 +614,14 @@ class _ReplaySource:
     * The ratio counts env steps from the moment learning starts (as FastTD3 / SB3 do): counted from
       step 0, the first call would owe ``utd * learning_starts`` gradient steps at once, a burst
       on the small initial buffer.
-    * The ratio is an upper bound: async workers never wait for the learner, so a learner slower than
-      ``utd x`` the env rate runs below it (``perf/utd`` logs the ratio reached).
+    * The ratio is an upper bound. With ``hold_window`` (``--utd_mode=hold``) it is also held from
+      below: the pool's env-step limit follows the learner, at ``learn_start + (gradient steps + U) /
+      utd + hold_window`` (never past the run's ``total_steps``, never lowered), so workers pause when
+      the learner falls more than the window behind and a slow learner gets the same gradient steps per
+      env step as a fast one. The limit always covers the data the next call waits for, so paused
+      workers never starve the loop. During warm-up it lets the buffer fill to ``learning_starts`` plus
+      the window. Without it (``free``) workers never wait for the learner, and one slower than ``utd``
+      x the env rate runs below the ratio. ``perf/utd`` logs the ratio reached.
     * Batch ``k`` of the run (``k`` = the update counter) is sampled with a generator seeded by
       ``(seed, k)``, and checkpoints record the ratio's bookkeeping, so a resumed run samples and
       paces exactly as an uninterrupted one (a batch the prefetcher drew but the loop never used is
@@ -613,10 +642,13 @@ class _ReplaySource:
     _RNG_TAG = 0x5A4D  # keeps the sampling stream apart from other streams derived from the run seed
 
     def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int, store: Any = None,
-                 hot_fraction: float = 0.5, saved: dict[str, Any] | None = None, mirror: Any = None):
+                 hot_fraction: float = 0.5, saved: dict[str, Any] | None = None, mirror: Any = None, *,
+                 total_steps: int, hold_window: int | None = None):
         self._pool, self._xp, self._cfg, self._mirror = pool, xp, cfg, mirror
         self._seed = seed % 2**32
         self._steps0 = counters["env_steps"]  # env steps before this process (resume)
+        self._budget = max(int(total_steps) - self._steps0, 0)  # pool env steps this process may take
+        self._window, self._allowed = hold_window, 0  # ratio holding: window, pool step limit set so far
         self._updates0 = counters["updates"]  # batches used before this process: the next batch's RNG index
         saved = saved or {}
         self._learn_start: int | None = saved.get("learn_start")  # run env steps when learning started
@@ -638,9 +670,18 @@ class _ReplaySource:
         if self._need > capacity:
             raise ValueError(f"learning_starts/batch_size ({self._need}) exceed the replay capacity ({capacity} "
                              f"transitions over {pool.num_workers} workers): raise replay_capacity")
+        if self._window is not None:
+            self._hold(self._need + self._window)
 
     def _env_steps(self) -> int:
         return self._steps0 + self._pool.env_steps()
+
+    def _hold(self, limit: int) -> None:
+        """Raises the pool's env-step limit (pool steps) to ``limit``, capped by the run's budget."""
+        limit = min(max(limit, self._allowed), self._budget)
+        if limit != self._allowed:
+            self._allowed = limit
+            self._pool.set_step_limit(limit)
 
     def _sampleable(self) -> int:
         hot = self._pool.replay_size()
@@ -668,16 +709,20 @@ class _ReplaySource:
                     return None
                 if time.monotonic() >= t_end:
                     return noop
+                if self._window is not None and pool.step_limit_reached():  # a worker's ring wrapped: go on
+                    self._hold(pool.env_steps() + self._window)
                 self._wait_tick()
             self._warm = True
             if self._learn_start is None or self._waited:  # (re)starting from a buffer that had to fill
                 self._learn_start, self._grad_steps = self._env_steps(), 0
+        if self._window is not None:  # let the workers bring this call's data, and the window beyond it
+            self._hold(self._learn_start - self._steps0 + math.ceil((self._grad_steps + u) / cfg.utd) + self._window)
         # Hold the update-to-data ratio: wait for data rather than over-train on a small buffer.
         t0 = time.perf_counter()
         while self._grad_steps + u > cfg.utd * (self._env_steps() - self._learn_start):
             if stop.is_set():
                 return None
-            if pool.step_limit_reached():  # capped workers will not bring the data: let the loop end
+            if pool.env_steps() >= self._budget:  # capped workers will not bring the data: let the loop end
                 return noop
             self._wait_tick()
         t1 = time.perf_counter()
@@ -710,7 +755,7 @@ class _ReplaySource:
             return False
         self._consumed += 1
         learned_on = max(self._env_steps() - (self._learn_start or 0), 1)
-        stats["scalars"]["perf/utd"] = self._grad_steps / learned_on
+        stats["scalars"].update({"perf/utd": self._grad_steps / learned_on, "perf/utd_target": self._cfg.utd})
         self._since_publish += self._cfg.updates_per_call
         if self._since_publish >= self._cfg.publish_every:
             self._since_publish = 0
@@ -756,7 +801,8 @@ class _ReplaySource:
     def pool_scalars(self) -> dict[str, float]:
         st = self._pool.stats()
         hot = float(st.get("replay_size", 0))
-        out = {"replay/size": hot, **_worker_scalars(st)}
+        # Replay workers wait only for the first weights and at the step limit: the pause of a held ratio.
+        out = {"replay/size": hot, "perf/workers_paused_s": st["worker_wait_s"], **_worker_scalars(st)}
         if self._store is not None:
             disk = self._store.size
             # Rings and disk overlap (every ring row is written through): distinct rows ~ the larger tier.

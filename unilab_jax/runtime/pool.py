@@ -662,6 +662,7 @@ class WorkerPool:
         timing = self._ctl["timing"].sum(axis=0)
         total = max(float(timing.sum()), 1e-9)
         out["worker_time_fraction"] = {name: float(timing[i] / total) for i, name in enumerate(TIMING)}
+        out["worker_wait_s"] = float(timing[TIMING.index("wait")])  # summed over workers, since the start
         if isinstance(self.buffer, ReplayBuffer):
             out["replay_size"] = self.buffer.size()
             out["replay_resampled"] = self.buffer.resampled
