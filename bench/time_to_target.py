@@ -53,16 +53,19 @@ DEFAULT_MD = os.path.join(HERE, "results", "time_to_target.md")
 
 # name -> kind, script, extra flags. Heterogeneous runs get --num_workers and --envs_per_worker (the config's
 # "envs_per_worker", 128 if it names none, unless given on the command line): the off-policy recipes use 64
-# envs per worker, as in FastTD3/FastSAC's ~1024 parallel envs.
+# envs per worker, as in FastTD3/FastSAC's ~1024 parallel envs. The off-policy "_async" configurations run the
+# workers free (as when they were first measured); "fastsac_hold" holds the recipe's update-to-data ratio.
 CONFIGS: dict[str, dict[str, Any]] = {
     "ppo_lockstep": {"kind": "heterogeneous", "sync": "lockstep", "script": "experiments/ppo_go1.py",
                      "eval_every": 2_000_000},
     "appo_async": {"kind": "heterogeneous", "sync": "async", "script": "experiments/appo_go1.py",
                    "eval_every": 2_000_000},
     "fastsac_async": {"kind": "heterogeneous", "sync": "async", "script": "experiments/fastsac_go1.py",
-                      "eval_every": 1_000_000, "envs_per_worker": 64},
+                      "eval_every": 1_000_000, "envs_per_worker": 64, "flags": ["--utd_mode=free"]},
     "flashsac_async": {"kind": "heterogeneous", "sync": "async", "script": "experiments/flashsac_go1.py",
-                       "eval_every": 1_000_000, "envs_per_worker": 64},
+                       "eval_every": 1_000_000, "envs_per_worker": 64, "flags": ["--utd_mode=free"]},
+    "fastsac_hold": {"kind": "heterogeneous", "sync": "async", "script": "experiments/fastsac_go1.py",
+                     "eval_every": 1_000_000, "envs_per_worker": 64, "flags": ["--utd_mode=hold"]},
     "mjx_ppo": {"kind": "mjx", "sync": "lockstep", "script": "experiments/ppo_go1_mjx.py", "eval_every": 10_000_000,
                 "flags": ["--num_envs=8192"]},
     "mjx_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
