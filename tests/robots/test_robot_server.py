@@ -114,7 +114,7 @@ def test_dropped_reply_raises_robot_disconnected(client):
         t = time.perf_counter()
         with pytest.raises(RobotDisconnected, match="did not answer 'spec'"):
             robot.connect()
-        assert time.perf_counter() - t < 1.0
+        assert time.perf_counter() - t < 2.0  # the 0.3 s timeout, plus slack for a loaded machine
         assert robot.health().state == "disconnected"
         robot.close()
 
@@ -146,7 +146,7 @@ def test_killed_server_disconnects_client_promptly_and_restart_accepts_a_new_cli
         robot.step(MOVE)
     waited = time.perf_counter() - t
     print(f"disconnect detected after {waited * 1e3:.0f} ms")
-    assert waited < 1.0
+    assert waited < 2.0  # the 0.5 s timeout (+ the heartbeat's wait), plus slack for a loaded machine
     assert robot.health().state == "disconnected"
     with pytest.raises(RobotDisconnected):
         query(server.address, timeout_s=0.3)
