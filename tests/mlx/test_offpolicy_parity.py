@@ -16,12 +16,12 @@ import pytest
 
 mx = pytest.importorskip("mlx.core")
 
-from no_jax import assert_runs_without_jax  # noqa: E402
+from mlx_helpers import assert_runs_without_jax  # noqa: E402
+from mlx_helpers import leaf_errors as _leaf_errors  # noqa: E402
 
 from tasks.base import TaskSpec  # noqa: E402
 from unilab_jax.algos.offpolicy import fastsac, flashsac, sac, td3  # noqa: E402
 from unilab_jax.algos.offpolicy import learner_mlx as mlx_off  # noqa: E402
-from unilab_jax.xp import tree_paths  # noqa: E402
 
 SPEC = TaskSpec(name="t", obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
                 reward_terms=("r",))
@@ -57,19 +57,6 @@ def _batch(seed: int) -> dict[str, np.ndarray]:
             "next_critic_obs": f32(critic_obs + 0.3 * rng.normal(size=critic_obs.shape)),
             "action": f32(np.tanh(rng.normal(size=(U, B, SPEC.action_dim)))),
             "reward": f32(0.5 + rng.normal(size=(U, B))), "terminated": terminated, "truncated": truncated}
-
-
-def _leaf_errors(got: object, want: object) -> dict[str, float]:
-    """Per float leaf: max |got - want| / max |want|."""
-    g, w = dict(tree_paths(got)), dict(tree_paths(want))
-    assert g.keys() == w.keys()
-    out = {}
-    for p in w:
-        a, b = np.asarray(g[p]), np.asarray(w[p])
-        assert a.shape == b.shape, p
-        if b.dtype.kind == "f" and b.size:
-            out[p] = float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-12))
-    return out
 
 
 def _jax_noise(key, is_td3: bool) -> dict[str, np.ndarray]:

@@ -15,14 +15,14 @@ import pytest
 
 mx = pytest.importorskip("mlx.core")
 
-from no_jax import assert_runs_without_jax  # noqa: E402
+from mlx_helpers import assert_runs_without_jax  # noqa: E402
+from mlx_helpers import leaf_errors as _leaf_errors  # noqa: E402
 
 from tasks.base import TaskSpec  # noqa: E402
 from unilab_jax import nets  # noqa: E402
 from unilab_jax.algos.ppo import appo, ppo  # noqa: E402
 from unilab_jax.algos.ppo import learner_mlx as mlx_ppo  # noqa: E402
 from unilab_jax.core import distributions  # noqa: E402
-from unilab_jax.xp import tree_paths  # noqa: E402
 
 SPEC = TaskSpec(name="t", obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
                 reward_terms=("r",))
@@ -59,19 +59,6 @@ def _batch(seed: int, weights: dict) -> dict[str, np.ndarray]:
 
 def _to_mlx(batch: dict) -> dict:
     return {k: mx.array(v) for k, v in batch.items()}
-
-
-def _leaf_errors(got: object, want: object) -> dict[str, float]:
-    """Per float leaf: max |got - want| / max |want| (paths like ``params/actor/0/w``)."""
-    g, w = dict(tree_paths(got)), dict(tree_paths(want))
-    assert g.keys() == w.keys()
-    out = {}
-    for p in w:
-        a, b = np.asarray(g[p]), np.asarray(w[p])
-        assert a.shape == b.shape, p
-        if b.dtype.kind == "f" and b.size:
-            out[p] = float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-12))
-    return out
 
 
 def _setup(use_vtrace: bool, config: ppo.PPOConfig):

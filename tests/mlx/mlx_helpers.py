@@ -1,9 +1,14 @@
-"""Runs a script in a fresh interpreter and asserts it finished without importing jax, jaxlib or optax."""
+"""Shared by the MLX parity tests: per-leaf relative errors between two state pytrees, and a script run
+in a fresh interpreter that must finish without importing jax, jaxlib or optax."""
 
 import os
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
+
+from unilab_jax.xp import tree_paths
 
 ROOT = Path(__file__).resolve().parents[2]
 _CHECK = """
@@ -21,3 +26,16 @@ def assert_runs_without_jax(script: str) -> None:
     res = subprocess.run([sys.executable, "-c", script + _CHECK], cwd=ROOT, env=env, capture_output=True, text=True,
                          timeout=300)
     assert res.returncode == 0 and "ok" in res.stdout, f"exit {res.returncode}\n{res.stdout}\n{res.stderr}"
+
+
+def leaf_errors(got: object, want: object) -> dict[str, float]:
+    """Per float leaf: max |got - want| / max |want| (paths like ``params/actor/0/w``)."""
+    g, w = dict(tree_paths(got)), dict(tree_paths(want))
+    assert g.keys() == w.keys()
+    out = {}
+    for p in w:
+        a, b = np.asarray(g[p]), np.asarray(w[p])
+        assert a.shape == b.shape, p
+        if b.dtype.kind == "f" and b.size:
+            out[p] = float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-12))
+    return out
