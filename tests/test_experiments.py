@@ -18,12 +18,13 @@ def _run(script, *args, timeout=600):
 
 def test_ppo_go1_runs_and_resumes(tmp_path):
     logdir = str(tmp_path / "go1")
-    first = _run("ppo_go1.py", "--total_steps=20000", "--num_workers=2", "--eval_envs=2", f"--logdir={logdir}")
+    short = "--task_config=episode_length=200"  # evaluations run whole episodes: keep them short
+    first = _run("ppo_go1.py", "--total_steps=20000", "--num_workers=2", "--eval_envs=2", short, f"--logdir={logdir}")
     assert first.returncode == 0, first.stderr[-3000:]
     assert glob.glob(os.path.join(logdir, "events.out.tfevents.*"))
     steps = sorted(int(d) for d in os.listdir(os.path.join(logdir, "checkpoints")) if d.isdigit())
     assert steps and steps[-1] >= 20000
-    second = _run("ppo_go1.py", "--total_steps=40000", "--num_workers=2", "--eval_envs=2", "--resume",
+    second = _run("ppo_go1.py", "--total_steps=40000", "--num_workers=2", "--eval_envs=2", short, "--resume",
                   f"--logdir={logdir}")
     assert second.returncode == 0, second.stderr[-3000:]
     summary = json.load(open(os.path.join(logdir, "summary.json")))
@@ -65,7 +66,7 @@ def test_fastsac_g1_trained_on_mlx_resumes_on_jax(tmp_path):
     # Issue criterion: fastsac_g1.py runs with --platform=mlx and its checkpoint restores with --platform=jax.
     logdir = str(tmp_path / "g1")
     small = ["--num_workers=2", "--config=learning_starts=2048", "--config=batch_size=256", "--eval_envs=2",
-             f"--logdir={logdir}"]
+             "--task_config=episode_length=200", f"--logdir={logdir}"]
     first = _run("fastsac_g1.py", "--platform=mlx", "--total_steps=5000", *small)
     assert first.returncode == 0, first.stderr[-3000:]
     done = json.load(open(os.path.join(logdir, "summary.json")))

@@ -165,7 +165,8 @@ def _run_script(script, *args, timeout=600):
 @pytest.mark.parametrize("script", ["fastsac_g1.py", "flashsac_go2.py"])
 def test_walking_recipe_runs_end_to_end(tmp_path, script):
     logdir = str(tmp_path / script[:-3])
-    out = _run_script(script, "--total_steps=5000", "--num_workers=2", f"--logdir={logdir}")
+    out = _run_script(script, "--total_steps=5000", "--num_workers=2", "--eval_envs=4",
+                      "--task_config=episode_length=200", f"--logdir={logdir}")  # short evaluation episodes
     assert out.returncode == 0, out.stderr[-3000:]
     assert glob.glob(os.path.join(logdir, "events.out.tfevents.*"))
     steps = sorted(int(d) for d in os.listdir(os.path.join(logdir, "checkpoints")) if d.isdigit())
