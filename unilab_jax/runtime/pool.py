@@ -67,6 +67,7 @@ from unilab_jax.runtime.worker import (
     EPISODES,
     FAILED,
     HEARTBEAT,
+    INTERRUPTED,
     JAX,
     NEW,
     NONFINITE,
@@ -658,6 +659,7 @@ class WorkerPool:
             "workers_with_jax": int(words[:, JAX].sum()),
             "worker_restarts": sum(self._restarts),
             "nonfinite_rows": int(words[:, NONFINITE].sum()),
+            "interrupted_steps": int(words[:, INTERRUPTED].sum()),
         }
         timing = self._ctl["timing"].sum(axis=0)
         total = max(float(timing.sum()), 1e-9)
