@@ -42,7 +42,7 @@ class RobotTaskConfig:
 
     robots: tuple[str, ...] = ()  # robot server addresses (the inventory); (): in-process simulated robots
     arm: str = "franka"  # in-process robots only
-    episode_length: int = 50  # control steps before truncation (at most the robot's own limit)
+    episode_length: int = 100  # control steps before truncation (at most the robot's own limit)
     dense_reward: bool = True  # in-process robots only (servers choose theirs: --dense_reward)
     timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
     lease_s: float = 5.0
