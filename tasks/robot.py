@@ -153,7 +153,9 @@ class RobotTask(base.Task):
         while True:
             self.keepalive()
             if not self.config.robots:  # an in-process robot: a reset clears its fault
-                return self.robots[i].reset()
+                obs = self.robots[i].reset()
+                self.rejoins += 1
+                return obs
             mine = self.slots[i]
             for slot in [mine] + [s for s in range(len(self.config.robots)) if s not in self.slots]:
                 client = self._try_claim(slot)

@@ -13,6 +13,9 @@ import time
 import numpy as np
 import pytest
 
+import tasks
+from tasks.base import StepInterrupted
+from unilab_jax.robots.interface import RobotFaulted
 from unilab_jax.robots.inventory import InventoryError, discover, parse
 from unilab_jax.runtime.pool import WorkerPool
 from unilab_jax.runtime.worker import STEPS
@@ -70,6 +73,38 @@ def test_inventory_toml_and_discovery(tmp_path, serve):
         discover(["tcp://127.0.0.1:1"], timeout_s=0.3)
 
 
+def _fail_once(robot, method: str) -> None:
+    real = getattr(robot, method)
+
+    def fail(*args):
+        setattr(robot, method, real)
+        raise RobotFaulted("injected")
+
+    setattr(robot, method, fail)
+
+
+def test_a_failed_step_is_interrupted_and_a_failed_reset_costs_no_transition():
+    task = tasks.make("robot_pick_place", 2, seed=0, overrides={"episode_length": 2})
+    try:
+        obs, _ = task.reset()
+        calls = []
+        task.keepalive = lambda: calls.append(1)
+        zero = np.zeros((2, 7), np.float32)
+        task.step(zero)
+        _fail_once(task.robots[1], "step")
+        with pytest.raises(StepInterrupted, match="RobotFaulted: injected") as e:
+            task.step(zero)
+        assert (e.value.critic_obs[:, -1] == 0).all() and (task.steps == 0).all()  # every env restarted
+        assert task.losses == task.rejoins == 1 and calls
+        task.step(zero)
+        _fail_once(task.robots[0], "reset")  # lost while resetting after the episode's last step
+        out = task.step(zero)
+        assert out.truncated.all() and (out.critic_obs[:, -1] == 0).all() and (out.next_critic_obs[:, -1] == 1).all()
+        assert task.losses == task.rejoins == 2
+    finally:
+        task.close()
+
+
 def _wait(cond, timeout: float, what: str) -> None:
     end = time.monotonic() + timeout
     while not cond():
@@ -104,12 +139,14 @@ def test_killed_robot_stops_its_worker_only_and_rejoins_when_restarted(serve):
         time.sleep(4.0)
         assert int(words[victim, STEPS]) == frozen, "the worker of the killed robot kept producing"
         assert int(words[other, STEPS]) > before + 100, "the other robot's worker stopped"
-        assert pool.stats()["worker_restarts"] == 0  # waiting for its robot, it heartbeats
+        st = pool.stats()
+        assert st["worker_restarts"] == 0 and st["workers_waiting"] == 1  # waiting for its robot, it heartbeats
         servers.append(serve("--robot=ur5e", f"--port={servers[1].port}", *FAST))
         _wait(lambda: int(words[victim, STEPS]) >= frozen + 100, 60, "the restarted robot to rejoin")
         pool.set_step_limit(0)
         time.sleep(0.5)
-        assert pool.stats()["interrupted_steps"] == 1  # counted once the step gave up, after the rejoin
+        st = pool.stats()
+        assert st["interrupted_steps"] == 1 and st["workers_waiting"] == 0  # counted once the step gave up
         for w in range(2):
             n = pool.buffer.count(w)
             assert n == int(words[w, STEPS])
@@ -130,12 +167,12 @@ def test_run_goes_on_when_a_robot_server_dies(tmp_path, serve):
     servers = [serve("--robot=franka", *FAST), serve("--robot=ur5e", *FAST)]
     logdir = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, SCRIPT, f"--robots={servers[0].address},{servers[1].address}",
-                             "--total_steps=2500", "--eval_envs=1", "--task_config=timeout_s=0.5",
+                             "--total_steps=1500", "--eval_envs=1", "--task_config=timeout_s=0.5",
                              f"--logdir={logdir}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         metrics = logdir / "metrics.jsonl"
-        _wait(lambda: metrics.exists() and any(json.loads(line)["step"] >= 800 for line in open(metrics)), 120,
-              "800 env steps")
+        _wait(lambda: metrics.exists() and any(json.loads(line)["step"] >= 500 for line in open(metrics)), 120,
+              "500 env steps")
         servers[1].kill()
         _, err = proc.communicate(timeout=180)
     finally:
@@ -144,5 +181,7 @@ def test_run_goes_on_when_a_robot_server_dies(tmp_path, serve):
             proc.wait(10)
     assert proc.returncode == 0, err[-3000:]
     summary = json.load(open(logdir / "summary.json"))
-    assert summary["env_steps"] >= 2500 and not summary["interrupted"]
+    assert summary["env_steps"] >= 1500 and not summary["interrupted"]
     assert os.listdir(logdir / "checkpoints")
+    rows = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
+    assert any(r.get("perf/workers_waiting") == 1 for r in rows)  # the worker of the dead robot, logged

@@ -30,7 +30,8 @@ Faults the worker guards against itself:
   writes nothing for that step: the replay rows are not committed (a trajectory step is taken again in
   the same slot row, the previous row marked truncated, so no return is bootstrapped across the gap);
   the envs continue from the observations the task gives, and the steps are counted (``INTERRUPTED``).
-  The task keeps the worker alive while it waits through ``task.keepalive`` (the worker's ``_check``).
+  The task keeps the worker alive while it waits through ``task.keepalive`` (the worker's ``_check``,
+  which also raises ``WAITING`` until the task's step returns: the pool counts waiting workers).
 * **Step budget.** Replay workers never wait for the learner; when the pool sets an env-step limit
   (``flags[STEP_LIMIT]``) they stop stepping once the pool-wide count reaches it (still heartbeating
   and answering the stop flag).
@@ -59,7 +60,7 @@ __all__ = ["Worker", "WorkerArgs", "control_layout", "worker_main", "Stopped"]
 # Per-worker int64 words of the control segment ("worker" [W, 16]). RESUME_VERSION is written by the
 # pool before it respawns a lockstep worker: the version of the last chunk that worker published.
 (STEPS, STATUS, PID, EPISODES, VERSION, CHUNKS, HEARTBEAT, W_READS, W_RETRIES, JAX, TERM_ROWS, NONFINITE,
- RESUME_VERSION, INTERRUPTED) = range(14)
+ RESUME_VERSION, INTERRUPTED, WAITING) = range(15)
 # Pool-wide words ("flags" [16]): the stop flag and the env-step limit (-1: none).
 STOP_FLAG, STEP_LIMIT = 0, 1
 # Status values.
@@ -153,7 +154,7 @@ class Worker:
         self._nonfinite_logged = False
         self.weights = WeightReader(args.weights_handle)
         self.task = tasks.make(args.task_name, args.envs_per_worker, args.worker_seed, dict(args.task_overrides))
-        self.task.keepalive = self._check
+        self.task.keepalive = self._keepalive
         self._interrupted = tasks.base.StepInterrupted
         self.spec = self.task.spec
         self._reset_envs = getattr(self.task, "reset_envs", None)
@@ -186,6 +187,11 @@ class Worker:
             self._last_parent_check = now
             if self.args.parent_pid != os.getpid() and os.getppid() != self.args.parent_pid:
                 raise Stopped()
+
+    def _keepalive(self) -> None:
+        """What a task calls while it waits inside a step (e.g. for a lost robot)."""
+        self._words[WAITING] = 1
+        self._check()
 
     def _wait_for_budget(self) -> None:
         """Blocks while the pool-wide env-step count is at the pool's limit (replay workers only)."""
@@ -242,6 +248,9 @@ class Worker:
         try:
             res = self.task.step(action)
         except self._interrupted as e:
+            self._words[WAITING] = 0
+            sys.stderr.write(f"[unilab worker {self.id}] step interrupted, no transition written: {e}\n")
+            sys.stderr.flush()
             self.obs, self.critic_obs = e.obs, e.critic_obs
             self.ep_return[:] = 0.0
             self.ep_length[:] = 0
@@ -250,6 +259,8 @@ class Worker:
             self._timing[1] += time.perf_counter() - t2
             return False
         t3 = time.perf_counter()
+        if self._words[WAITING]:
+            self._words[WAITING] = 0
         out["reward"][...] = res.reward
         out["terminated"][...] = res.terminated
         out["truncated"][...] = res.truncated
