@@ -54,11 +54,30 @@ class StepOut(NamedTuple):
     reward_terms: dict[str, np.ndarray]
 
 
+class StepInterrupted(Exception):
+    """Raised by ``Task.step`` when the step could not be completed (e.g. a robot was lost, and the task
+    waited until it or another robot answered again): the step produced no transition, every env was
+    reset, and ``obs`` / ``critic_obs`` are the observations the next step starts from."""
+
+    def __init__(self, reason: str, obs: np.ndarray, critic_obs: np.ndarray):
+        super().__init__(reason)
+        self.obs, self.critic_obs = obs, critic_obs
+
+
+def _nothing() -> None:
+    return None
+
+
 class Task(abc.ABC):
-    """Base class of batched CPU tasks. Subclasses set ``spec`` in ``__init__``."""
+    """Base class of batched CPU tasks. Subclasses set ``spec`` in ``__init__``.
+
+    ``keepalive``: a task that may block for long inside ``step`` (waiting for a lost robot) calls
+    ``self.keepalive()`` at least every second while it waits; a rollout worker sets it to its own
+    liveness check (which heartbeats and raises when the pool stops the worker)."""
 
     spec: TaskSpec
     config: Any
+    keepalive: Callable[[], None] = staticmethod(_nothing)
 
     def __init__(self, config: Any, num_envs: int, seed: int):
         if num_envs <= 0:
@@ -131,6 +150,9 @@ _REGISTRY: dict[str, _Entry] = {
     "go1_joystick_flat": _builtin("tasks.go1_joystick"),
     "go2_joystick_flat": _builtin("tasks.go2_joystick"),
     "g1_walk_flat": _builtin("tasks.g1_walk"),
+    "robot_pick_place": _Entry(_ByName("tasks.robot:make", "pick_place"), _ByName("tasks.robot:default_config")),
+    "robot_peg_insertion": _Entry(_ByName("tasks.robot:make", "peg_insertion"),
+                                  _ByName("tasks.robot:default_config")),
     **{f"{name}_hist": _history(name) for name in ("cartpole_balance", "go1_joystick_flat", "go2_joystick_flat")},
 }
 

@@ -819,7 +819,8 @@ class _ReplaySource:
 def _worker_scalars(stats: dict[str, Any]) -> dict[str, float]:
     """Worker throughput and where worker time goes (act / task / write / wait fractions)."""
     out = {"perf/worker_env_steps_per_s": stats["env_steps_per_s"],
-           "perf/worker_restarts": stats["worker_restarts"], "perf/nonfinite_rows": stats["nonfinite_rows"]}
+           "perf/worker_restarts": stats["worker_restarts"], "perf/nonfinite_rows": stats["nonfinite_rows"],
+           "perf/interrupted_steps": stats["interrupted_steps"], "perf/workers_waiting": stats["workers_waiting"]}
     out.update({f"perf/worker_{k}_fraction": v for k, v in stats["worker_time_fraction"].items()})
     return out
 

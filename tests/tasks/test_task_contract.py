@@ -22,12 +22,15 @@ def _actions(task, steps, seed=0):
 # Built-in tasks only: test modules register deliberately broken toy tasks (e.g. ``toy_nan`` emits NaN to test
 # the runtime's masking), and they may be collected before this module.
 BUILTIN = [n for n in tasks.names() if tasks.base._REGISTRY[n].factory.__module__.startswith("tasks.")]
+# Robot episodes end only on success or at the robot's time limit (100 steps, which the scripted experts
+# need: 40-60 steps): a shorter limit lets random actions end episodes within the STEPS of this test.
+ROLLOUT_OVERRIDES = {"robot_pick_place": {"episode_length": 40}, "robot_peg_insertion": {"episode_length": 40}}
 
 
 @pytest.fixture(scope="module", params=BUILTIN)
 def rollout(request):
     """(task, reset outputs, list of StepOut) for STEPS random steps of each registered task."""
-    task = tasks.make(request.param, NUM_ENVS, seed=0)
+    task = tasks.make(request.param, NUM_ENVS, seed=0, overrides=ROLLOUT_OVERRIDES.get(request.param))
     first = task.reset()
     outs = [task.step(a) for a in _actions(task, STEPS)]
     yield task, first, outs

@@ -67,6 +67,7 @@ from unilab_jax.runtime.worker import (
     EPISODES,
     FAILED,
     HEARTBEAT,
+    INTERRUPTED,
     JAX,
     NEW,
     NONFINITE,
@@ -81,6 +82,7 @@ from unilab_jax.runtime.worker import (
     TIMING,
     VERSION,
     W_RETRIES,
+    WAITING,
     Worker,
     WorkerArgs,
     control_layout,
@@ -658,6 +660,8 @@ class WorkerPool:
             "workers_with_jax": int(words[:, JAX].sum()),
             "worker_restarts": sum(self._restarts),
             "nonfinite_rows": int(words[:, NONFINITE].sum()),
+            "interrupted_steps": int(words[:, INTERRUPTED].sum()),
+            "workers_waiting": int(words[:, WAITING].sum()),  # inside a task step, e.g. for a lost robot
         }
         timing = self._ctl["timing"].sum(axis=0)
         total = max(float(timing.sum()), 1e-9)

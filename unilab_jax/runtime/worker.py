@@ -26,6 +26,12 @@ Faults the worker guards against itself:
   their own MuJoCo divergences; this catches the rest (a policy with NaN weights, a buggy reward).
 * **Liveness.** :meth:`Worker._check` (run every step and every ``poll`` while waiting) bumps the
   ``HEARTBEAT`` word, which the pool watches to find a stopped or hung worker.
+* **Interrupted steps.** A task whose step could not complete (a lost robot: ``tasks.base.StepInterrupted``)
+  writes nothing for that step: the replay rows are not committed (a trajectory step is taken again in
+  the same slot row, the previous row marked truncated, so no return is bootstrapped across the gap);
+  the envs continue from the observations the task gives, and the steps are counted (``INTERRUPTED``).
+  The task keeps the worker alive while it waits through ``task.keepalive`` (the worker's ``_check``,
+  which also raises ``WAITING`` until the task's step returns: the pool counts waiting workers).
 * **Step budget.** Replay workers never wait for the learner; when the pool sets an env-step limit
   (``flags[STEP_LIMIT]``) they stop stepping once the pool-wide count reaches it (still heartbeating
   and answering the stop flag).
@@ -54,7 +60,7 @@ __all__ = ["Worker", "WorkerArgs", "control_layout", "worker_main", "Stopped"]
 # Per-worker int64 words of the control segment ("worker" [W, 16]). RESUME_VERSION is written by the
 # pool before it respawns a lockstep worker: the version of the last chunk that worker published.
 (STEPS, STATUS, PID, EPISODES, VERSION, CHUNKS, HEARTBEAT, W_READS, W_RETRIES, JAX, TERM_ROWS, NONFINITE,
- RESUME_VERSION) = range(13)
+ RESUME_VERSION, INTERRUPTED, WAITING) = range(15)
 # Pool-wide words ("flags" [16]): the stop flag and the env-step limit (-1: none).
 STOP_FLAG, STEP_LIMIT = 0, 1
 # Status values.
@@ -148,6 +154,8 @@ class Worker:
         self._nonfinite_logged = False
         self.weights = WeightReader(args.weights_handle)
         self.task = tasks.make(args.task_name, args.envs_per_worker, args.worker_seed, dict(args.task_overrides))
+        self.task.keepalive = self._keepalive
+        self._interrupted = tasks.base.StepInterrupted
         self.spec = self.task.spec
         self._reset_envs = getattr(self.task, "reset_envs", None)
         self.m = args.envs_per_worker
@@ -180,6 +188,11 @@ class Worker:
             if self.args.parent_pid != os.getpid() and os.getppid() != self.args.parent_pid:
                 raise Stopped()
 
+    def _keepalive(self) -> None:
+        """What a task calls while it waits inside a step (e.g. for a lost robot)."""
+        self._words[WAITING] = 1
+        self._check()
+
     def _wait_for_budget(self) -> None:
         """Blocks while the pool-wide env-step count is at the pool's limit (replay workers only)."""
         t0 = time.perf_counter()
@@ -211,8 +224,9 @@ class Worker:
         self._words[VERSION] = version
 
     # ---- one env step -------------------------------------------------------------------------
-    def _step(self, out: dict[str, np.ndarray]) -> None:
-        """Acts, steps the task and writes one transition per env into ``out`` ({field: [M, ...]})."""
+    def _step(self, out: dict[str, np.ndarray]) -> bool:
+        """Acts, steps the task and writes one transition per env into ``out`` ({field: [M, ...]}); False
+        (nothing valid written) when the task interrupted the step."""
         self._check()
         if self.args.sync == "async":
             got = self.weights.poll()
@@ -231,8 +245,22 @@ class Worker:
         for name, value in extras.items():
             out[name][...] = np.asarray(value)
         t2 = time.perf_counter()
-        res = self.task.step(action)
+        try:
+            res = self.task.step(action)
+        except self._interrupted as e:
+            self._words[WAITING] = 0
+            sys.stderr.write(f"[unilab worker {self.id}] step interrupted, no transition written: {e}\n")
+            sys.stderr.flush()
+            self.obs, self.critic_obs = e.obs, e.critic_obs
+            self.ep_return[:] = 0.0
+            self.ep_length[:] = 0
+            self._noise_left[:] = 0
+            self._words[INTERRUPTED] += 1
+            self._timing[1] += time.perf_counter() - t2
+            return False
         t3 = time.perf_counter()
+        if self._words[WAITING]:
+            self._words[WAITING] = 0
         out["reward"][...] = res.reward
         out["terminated"][...] = res.terminated
         out["truncated"][...] = res.truncated
@@ -273,6 +301,7 @@ class Worker:
         timing[0] += t1 - t0
         timing[1] += t3 - t2
         timing[2] += (t2 - t1) + (time.perf_counter() - t3)
+        return True
 
     def _mask_nonfinite(self, out: dict[str, np.ndarray]) -> np.ndarray | None:
         """Zeroes and truncates the rows of ``out`` holding a NaN/Inf; returns their env indices (or None).
@@ -352,7 +381,9 @@ class Worker:
             views = self.traj.slot(self.id, slot)
             start_version = self.version
             for t in range(t_len):
-                self._step({k: v[t] for k, v in views.items()})
+                while not self._step({k: v[t] for k, v in views.items()}):
+                    if t > 0:  # the previous row's successor is real, but the episode is gone
+                        views["truncated"][t - 1] |= ~views["terminated"][t - 1]
             self.traj.publish(self.id, slot)
         else:
             start_version = self.version
@@ -360,8 +391,8 @@ class Worker:
                 if block:
                     self._wait_for_budget()
                 _, rows = self.replay.rows(self.id)
-                self._step(rows)
-                self.replay.commit(self.id)
+                if self._step(rows):
+                    self.replay.commit(self.id)
         self.chunk_version = start_version if self.args.sync == "lockstep" else self.version
         self._words[CHUNKS] += 1
         return True
@@ -379,9 +410,9 @@ class Worker:
             if self.params is None:
                 break
             _, rows = self.replay.rows(self.id)
-            self._step(rows)
-            self.replay.commit(self.id)
-            done += 1
+            if self._step(rows):
+                self.replay.commit(self.id)
+                done += 1
         return done
 
     def run(self) -> None:

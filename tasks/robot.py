@@ -1,0 +1,249 @@
+"""``robot_pick_place`` / ``robot_peg_insertion``: a task whose environments are robots (docs/ROBOTS.md).
+
+With ``robots`` (an inventory of ``tcp://HOST:PORT`` robot servers, ``unilab_jax.robots.inventory``) each
+of the task's ``num_envs`` environments is one robot claimed from the inventory: the first free ones in
+order, so workers of one run given the same inventory share it out among themselves (a claim is
+exclusive; ``connect_timeout_s`` bounds the wait for free robots). Without ``robots`` the environments
+are in-process simulated robots (``arm``, unpaced, no cameras): for tests and the task contract.
+
+Observation (state-based): the robot's ``proprio`` [13], a one-hot of its kind (``KINDS``) and a one-hot of
+its place in the inventory (the robot's identity; one slot without an inventory). Critic observation:
+the observation, the robot's privileged state and the episode time ``t / episode_length``.
+Reward: the robot's (one term, ``task``). An episode ends when the robot says so (success: terminated;
+its time limit: truncated) or after ``episode_length`` steps (truncated).
+
+Robots step concurrently (one thread each; a step blocks for a control period). A lost robot (its server
+does not answer, or a step or reset fails) interrupts the step (``tasks.base.StepInterrupted``: no
+transition, every env reset): the task first waits, calling ``keepalive`` and retrying every ``retry_s``,
+until the robot's server or another free robot of the inventory answers and resets (the robot
+*rejoins*). ``losses`` / ``rejoins`` count this.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import time
+
+import numpy as np
+
+from tasks import base
+from unilab_jax.robots.client import RobotClient
+from unilab_jax.robots.interface import Robot, RobotClaimed, RobotDisconnected, RobotError
+from unilab_jax.robots.inventory import check_address, compatible
+
+KINDS = ("franka", "ur5e")
+REWARD_TERMS = ("task",)
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotTaskConfig:
+    """Configuration of the robot tasks (override any field by name)."""
+
+    robots: tuple[str, ...] = ()  # robot server addresses (the inventory); (): in-process simulated robots
+    arm: str = "franka"  # in-process robots only
+    episode_length: int = 100  # control steps before truncation (at most the robot's own limit)
+    dense_reward: bool = True  # in-process robots only (servers choose theirs: --dense_reward)
+    timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
+    lease_s: float = 5.0
+    connect_timeout_s: float = 60.0  # wait for free robots when the task is built
+    retry_s: float = 1.0  # between attempts to reach a lost robot
+
+    def __post_init__(self):
+        for address in self.robots:
+            check_address(address)
+        if self.episode_length < 1:
+            raise ValueError(f"episode_length must be positive, got {self.episode_length}")
+        if self.arm not in KINDS:
+            raise ValueError(f"arm must be one of {KINDS}, got {self.arm!r}")
+
+
+def default_config() -> RobotTaskConfig:
+    return RobotTaskConfig()
+
+
+class RobotTask(base.Task):
+    def __init__(self, config: RobotTaskConfig, num_envs: int, seed: int, task: str):
+        super().__init__(config, num_envs, seed)
+        self.task_name = task
+        self.losses = 0
+        self.rejoins = 0
+        self.robots: list[Robot] = []
+        self.slots: list[int] = []  # each env's place in the inventory (its identity)
+        try:
+            if config.robots:
+                if num_envs > len(config.robots):
+                    raise ValueError(f"{num_envs} environments need {num_envs} robots; the inventory has "
+                                     f"{len(config.robots)}: {list(config.robots)}")
+                self._claim_initial()
+            else:
+                self._make_local()
+        except BaseException:
+            self.close()
+            raise
+        spec = self.robots[0].spec
+        self.robot_spec = spec
+        self.n_ids = max(len(config.robots), 1)
+        self.length = min(config.episode_length, spec.episode_length)
+        obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids
+        self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
+                                  critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
+                                  episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS)
+        self.steps = np.zeros(num_envs, np.int64)
+        self._last = [dict[str, np.ndarray]() for _ in range(num_envs)]
+        self._threads = concurrent.futures.ThreadPoolExecutor(num_envs) if num_envs > 1 else None
+
+    # ---- robots ---------------------------------------------------------------------------------------
+    def _make_local(self) -> None:
+        from unilab_jax.robots.sim import SimConfig, SimRobot
+
+        for i in range(self.num_envs):
+            robot = SimRobot(SimConfig(arm=self.config.arm, task=self.task_name, cameras=(), speed=float("inf"),
+                                       reset_seconds=0.0, dense_reward=self.config.dense_reward,
+                                       seed=self.seed * 1000 + i))
+            robot.connect()
+            self.robots.append(robot)
+            self.slots.append(0)
+
+    def _try_claim(self, slot: int) -> RobotClient | None:
+        """A connected client of the inventory's robot ``slot``, or None if it is claimed or silent."""
+        c = self.config
+        client = RobotClient(c.robots[slot], timeout_s=c.timeout_s, lease_s=c.lease_s)
+        try:
+            client.connect()
+        except (RobotClaimed, RobotDisconnected):
+            client.close()
+            return None
+        except BaseException:
+            client.close()
+            raise
+        if client.spec.task != self.task_name or (self.robots and compatible(self.robots[0].spec, client.spec)):
+            client.close()
+            raise ValueError(f"robot {c.robots[slot]} ({client.spec.name}, task {client.spec.task}) cannot join "
+                             f"task robot_{self.task_name}"
+                             + (f": {compatible(self.robots[0].spec, client.spec)}" if self.robots else ""))
+        return client
+
+    def _claim_initial(self) -> None:
+        deadline = time.monotonic() + self.config.connect_timeout_s
+        while len(self.robots) < self.num_envs:
+            for slot in range(len(self.config.robots)):
+                if slot not in self.slots and len(self.robots) < self.num_envs:
+                    client = self._try_claim(slot)
+                    if client is not None:
+                        self.robots.append(client)
+                        self.slots.append(slot)
+            if len(self.robots) < self.num_envs:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"{self.num_envs} robots wanted, {len(self.robots)} free within "
+                                       f"{self.config.connect_timeout_s:.0f} s in {list(self.config.robots)}")
+                self._sleep(self.config.retry_s)
+
+    def _sleep(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            self.keepalive()
+            time.sleep(min(left, 0.2))
+
+    def _rejoin(self, i: int) -> dict[str, np.ndarray]:
+        """Env ``i`` lost its robot: waits until its own server, or another free robot, answers; resets it."""
+        self.losses += 1
+        if isinstance(self.robots[i], RobotClient):
+            self.robots[i].close()
+        while True:
+            self.keepalive()
+            if not self.config.robots:  # an in-process robot: a reset clears its fault
+                obs = self.robots[i].reset()
+                self.rejoins += 1
+                return obs
+            mine = self.slots[i]
+            for slot in [mine] + [s for s in range(len(self.config.robots)) if s not in self.slots]:
+                client = self._try_claim(slot)
+                if client is None:
+                    continue
+                try:
+                    obs = client.reset()
+                except RobotError:
+                    client.close()
+                    continue
+                self.robots[i], self.slots[i] = client, slot
+                self.rejoins += 1
+                return obs
+            self._sleep(self.config.retry_s)
+
+    # ---- observations ---------------------------------------------------------------------------------
+    def _obs(self, i: int, robot_obs: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        kind = np.zeros(len(KINDS), np.float32)
+        kind[KINDS.index(self.robots[i].spec.kind)] = 1.0
+        ident = np.zeros(self.n_ids, np.float32)
+        ident[self.slots[i]] = 1.0
+        obs = np.concatenate([robot_obs["proprio"].astype(np.float32), kind, ident])
+        t = np.array([self.steps[i] / self.length], np.float32)
+        return obs, np.concatenate([obs, robot_obs["privileged"].astype(np.float32), t])
+
+    def _observe_all(self) -> tuple[np.ndarray, np.ndarray]:
+        pairs = [self._obs(i, self._last[i]) for i in range(self.num_envs)]
+        return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
+
+    def _map(self, fn, *args) -> list:
+        """``fn(i, *args_i)`` for every env, concurrently; an exception is returned in its place."""
+
+        def call(i, *a):
+            try:
+                return fn(i, *a)
+            except RobotError as e:
+                return e
+
+        if self._threads is None:
+            return [call(i, *(a[i] for a in args)) for i in range(self.num_envs)]
+        return list(self._threads.map(call, range(self.num_envs), *args))
+
+    def _reset_all(self, lost: set[int]) -> None:
+        """Brings the ``lost`` envs' robots back, resets the others (a robot lost meanwhile is brought back)."""
+        got = self._map(lambda i: None if i in lost else self.robots[i].reset())
+        for i, g in enumerate(got):
+            self._last[i] = self._rejoin(i) if i in lost or isinstance(g, RobotError) else g
+        self.steps[:] = 0
+
+    # ---- the Task contract ----------------------------------------------------------------------------
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        self._reset_all(set())
+        return self._observe_all()
+
+    def step(self, action: np.ndarray) -> base.StepOut:
+        a = np.nan_to_num(np.asarray(action, np.float32).reshape(self.num_envs, -1), nan=0.0)
+        a = np.clip(a, -1.0, 1.0)
+        got = self._map(lambda i, ai: self.robots[i].step(ai), list(a))
+        lost = {i for i, g in enumerate(got) if isinstance(g, RobotError)}
+        if lost:  # no transition for anyone: every env starts again once the lost robots are back
+            reason = "; ".join(f"{self.config.robots[self.slots[i]] if self.config.robots else i}: "
+                               f"{type(got[i]).__name__}: {got[i]}" for i in sorted(lost))
+            self._reset_all(lost)
+            raise base.StepInterrupted(reason, *self._observe_all())
+        self.steps += 1
+        reward = np.array([g.reward for g in got], np.float32)
+        term = np.array([g.terminated for g in got], bool)
+        trunc = (np.array([g.truncated for g in got], bool) | (self.steps >= self.length)) & ~term
+        for i, g in enumerate(got):
+            self._last[i] = g.obs
+        next_obs, next_critic = self._observe_all()
+        done = np.flatnonzero(term | trunc)
+        obs, critic = next_obs, next_critic
+        if done.size:
+            fresh = self._map(lambda i, d: self.robots[i].reset() if d else None, list(term | trunc))
+            for i in done:  # the step happened: a robot lost while resetting starts its next episode on return
+                self._last[i] = self._rejoin(i) if isinstance(fresh[i], RobotError) else fresh[i]
+            self.steps[done] = 0
+            obs, critic = self._observe_all()
+        return base.StepOut(obs, critic, next_obs, next_critic, reward, term, trunc, {"task": reward.copy()})
+
+    def close(self) -> None:
+        if getattr(self, "_threads", None) is not None:
+            self._threads.shutdown()
+        for robot in self.robots:
+            robot.close()
+        self.robots = []
+
+
+def make(task: str, config: RobotTaskConfig, num_envs: int, seed: int) -> RobotTask:
+    return RobotTask(config, num_envs, seed, task)

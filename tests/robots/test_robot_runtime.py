@@ -1,0 +1,187 @@
+"""Robots as resources end to end: the pick-and-place experiment through robot servers, a robot server
+killed mid-run (its worker waits, the others go on, the replay holds every transition once) and
+restarted (the robot rejoins), bad inventories refused before anything starts."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import tasks
+from tasks.base import StepInterrupted
+from unilab_jax.robots.interface import RobotFaulted
+from unilab_jax.robots.inventory import InventoryError, discover, parse
+from unilab_jax.runtime.pool import WorkerPool
+from unilab_jax.runtime.worker import STEPS
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SCRIPT = os.path.join(ROOT, "experiments", "sac_franka_pick.py")
+FAST = ("--task=pick_place", "--speed=20", "--reset_s=0.1", "--cameras=none", "--dense_reward")
+PROPRIO, KINDS = 13, 2
+
+
+def _experiment(*args: str, timeout: float) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, SCRIPT, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def test_sac_franka_pick_trains_on_two_sim_robots(tmp_path):
+    logdir = tmp_path / "run"
+    t = time.perf_counter()
+    out = _experiment("--robots=sim:franka_emika_panda,sim:universal_robots_ur5e", "--speed=20",
+                      "--total_steps=3000", f"--logdir={logdir}", timeout=240)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "franka_pick_place (franka" in out.stdout and "ur5e_pick_place (ur5e" in out.stdout
+    rows = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
+    assert rows and rows[-1]["step"] >= 3000 and any("loss/critic_loss" in r or "loss/actor_loss" in r for r in rows)
+    summary = json.load(open(logdir / "summary.json"))
+    assert summary["env_steps"] >= 3000 and not summary["interrupted"] and np.isfinite(summary["eval/return"])
+    assert os.listdir(logdir / "checkpoints")
+    print(f"experiment: {time.perf_counter() - t:.1f} s, {summary['env_steps']} env steps")
+
+
+@pytest.mark.parametrize("robots,message", [
+    ("sim:mars_rover", "unknown simulated robot 'mars_rover'"),
+    ("tcp://127.0.0.1", "bad robot address"),
+    ("sim:franka_emika_panda,,", "no robots"),
+    ("franka", "use sim:NAME"),
+    ("/nonexistent/robots.toml", "robot inventory '/nonexistent/robots.toml'"),
+])
+def test_bad_robots_flag_exits_2_before_anything_starts(tmp_path, robots, message):
+    out = _experiment(f"--robots={robots}", f"--logdir={tmp_path / 'x'}", timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert message in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_inventory_toml_and_discovery(tmp_path, serve):
+    inv = tmp_path / "robots.toml"
+    inv.write_text('[[robot]]\nsim = "universal_robots_ur5e"\n[[robot]]\naddress = "tcp://127.0.0.1:5999"\n')
+    assert [str(e) for e in parse(str(inv))] == ["sim:universal_robots_ur5e", "tcp://127.0.0.1:5999"]
+    franka = serve("--robot=franka", *FAST)
+    peg = serve("--robot=ur5e", "--task=peg_insertion", "--speed=20", "--cameras=none")
+    (found,) = discover([franka.address], task="pick_place")
+    assert found.spec.kind == "franka" and found.health.state == "ok" and found.health.owner == ""
+    with pytest.raises(InventoryError, match="this run needs 'pick_place'"):
+        discover([franka.address, peg.address], task="pick_place")
+    with pytest.raises(InventoryError, match="no robot server answers at tcp://127.0.0.1:1"):
+        discover(["tcp://127.0.0.1:1"], timeout_s=0.3)
+
+
+def _fail_once(robot, method: str) -> None:
+    real = getattr(robot, method)
+
+    def fail(*args):
+        setattr(robot, method, real)
+        raise RobotFaulted("injected")
+
+    setattr(robot, method, fail)
+
+
+def test_a_failed_step_is_interrupted_and_a_failed_reset_costs_no_transition():
+    task = tasks.make("robot_pick_place", 2, seed=0, overrides={"episode_length": 2})
+    try:
+        obs, _ = task.reset()
+        calls = []
+        task.keepalive = lambda: calls.append(1)
+        zero = np.zeros((2, 7), np.float32)
+        task.step(zero)
+        _fail_once(task.robots[1], "step")
+        with pytest.raises(StepInterrupted, match="RobotFaulted: injected") as e:
+            task.step(zero)
+        assert (e.value.critic_obs[:, -1] == 0).all() and (task.steps == 0).all()  # every env restarted
+        assert task.losses == task.rejoins == 1 and calls
+        task.step(zero)
+        _fail_once(task.robots[0], "reset")  # lost while resetting after the episode's last step
+        out = task.step(zero)
+        assert out.truncated.all() and (out.critic_obs[:, -1] == 0).all() and (out.next_critic_obs[:, -1] == 1).all()
+        assert task.losses == task.rejoins == 2
+    finally:
+        task.close()
+
+
+def _wait(cond, timeout: float, what: str) -> None:
+    end = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < end, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+def test_killed_robot_stops_its_worker_only_and_rejoins_when_restarted(serve):
+    """Two robots, two workers; one server is SIGKILLed mid-episode: its worker waits (heartbeating past
+    the pool's 3 s hang timeout, not respawned) while the other goes on; a server restarted on the same
+    port is claimed again and its worker produces again. Each worker's replay rows form one unbroken
+    chain of transitions (next_obs of a row is the obs of the next, except across episode ends and the
+    one interrupted step): nothing lost, nothing twice."""
+    servers = [serve("--robot=franka", *FAST), serve("--robot=ur5e", *FAST)]
+    overrides = {"robots": tuple(s.address for s in servers), "timeout_s": 0.5, "retry_s": 0.2}
+    pool = WorkerPool("robot_pick_place", overrides, num_workers=2, envs_per_worker=1, algo_module="robot_toy_algo",
+                      weight_template={"w": np.zeros(1, np.float32)}, replay_capacity=100_000, heartbeat_timeout=3.0,
+                      max_restarts=0)
+    with pool:
+        pool.start()
+        pool.publish({"w": np.zeros(1, np.float32)}, 1)
+        words = pool._ctl["worker"]
+        _wait(lambda: words[:, STEPS].min() >= 100, 60, "100 steps per worker")
+        rows0 = {w: pool.buffer._data[w]["obs"][0] for w in range(2)}
+        slot_of = {w: int(np.argmax(rows0[w][PROPRIO + KINDS:])) for w in range(2)}
+        assert sorted(slot_of.values()) == [0, 1]  # each worker claimed its own robot
+        victim = next(w for w in range(2) if slot_of[w] == 1)
+        other = 1 - victim
+        servers[1].kill()
+        time.sleep(1.5)  # the lost step times out (0.5 s + its period)
+        frozen, before = int(words[victim, STEPS]), int(words[other, STEPS])
+        time.sleep(4.0)
+        assert int(words[victim, STEPS]) == frozen, "the worker of the killed robot kept producing"
+        assert int(words[other, STEPS]) > before + 100, "the other robot's worker stopped"
+        st = pool.stats()
+        assert st["worker_restarts"] == 0 and st["workers_waiting"] == 1  # waiting for its robot, it heartbeats
+        servers.append(serve("--robot=ur5e", f"--port={servers[1].port}", *FAST))
+        _wait(lambda: int(words[victim, STEPS]) >= frozen + 100, 60, "the restarted robot to rejoin")
+        pool.set_step_limit(0)
+        time.sleep(0.5)
+        st = pool.stats()
+        assert st["interrupted_steps"] == 1 and st["workers_waiting"] == 0  # counted once the step gave up
+        for w in range(2):
+            n = pool.buffer.count(w)
+            assert n == int(words[w, STEPS])
+            data = {k: pool.buffer._data[w][k][:n] for k in ("obs", "next_obs", "critic_obs", "terminated",
+                                                             "truncated")}
+            assert (np.argmax(data["obs"][:, PROPRIO + KINDS:], axis=1) == slot_of[w]).all()
+            ended = data["terminated"] | data["truncated"]
+            linked = (data["next_obs"][:-1] == data["obs"][1:]).all(axis=1)
+            breaks = np.flatnonzero(~linked & ~ended[:-1])
+            assert len(breaks) == (1 if w == victim else 0), breaks
+            # The row after the break starts a new episode (episode time 0 in the critic observation).
+            assert all(data["critic_obs"][b + 1, -1] == 0.0 for b in breaks)
+
+
+def test_run_goes_on_when_a_robot_server_dies(tmp_path, serve):
+    """The experiment on two running servers; one is killed once training is under way: the run reaches
+    its step budget on the other robot, saves its checkpoint and exits 0 (evaluating on one robot)."""
+    servers = [serve("--robot=franka", *FAST), serve("--robot=ur5e", *FAST)]
+    logdir = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, SCRIPT, f"--robots={servers[0].address},{servers[1].address}",
+                             "--total_steps=1500", "--eval_envs=1", "--task_config=timeout_s=0.5",
+                             f"--logdir={logdir}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        metrics = logdir / "metrics.jsonl"
+        _wait(lambda: metrics.exists() and any(json.loads(line)["step"] >= 500 for line in open(metrics)), 120,
+              "500 env steps")
+        servers[1].kill()
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert proc.returncode == 0, err[-3000:]
+    summary = json.load(open(logdir / "summary.json"))
+    assert summary["env_steps"] >= 1500 and not summary["interrupted"]
+    assert os.listdir(logdir / "checkpoints")
+    rows = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
+    assert any(r.get("perf/workers_waiting") == 1 for r in rows)  # the worker of the dead robot, logged

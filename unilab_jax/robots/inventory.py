@@ -1,0 +1,198 @@
+"""Robot inventories: which robots a run uses, local simulated servers for them, and discovery.
+
+An inventory is a comma list (``--robots``) or a TOML file::
+
+    sim:franka_emika_panda,sim:universal_robots_ur5e,tcp://192.168.1.20:5555
+
+    # robots.toml
+    [[robot]]
+    sim = "franka_emika_panda"
+    [[robot]]
+    address = "tcp://192.168.1.20:5555"
+
+``sim:NAME`` starts a local robot server subprocess for the Menagerie model NAME (on a free loopback
+port, no cameras); ``tcp://HOST:PORT`` is a server that is already running. ``discover`` asks each server
+for its spec and health (without claiming it) and refuses robots a policy cannot share (another task,
+other observation or action sizes). Imports the standard library and this package only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import queue
+import re
+import subprocess
+import sys
+import threading
+
+from unilab_jax.robots.client import query
+from unilab_jax.robots.interface import Health, RobotDisconnected, RobotSpec
+
+# Menagerie model name -> arm of robots.scenes.ARMS.
+SIM_ROBOTS = {"franka_emika_panda": "franka", "universal_robots_ur5e": "ur5e"}
+START_TIMEOUT_S = 60.0
+_ADDRESS = re.compile(r"^tcp://([A-Za-z0-9.\-]+|\[[0-9A-Fa-f:]+\]):(\d{1,5})$")
+
+
+class InventoryError(ValueError):
+    """A bad inventory, a server that does not answer, or robots that cannot share a policy."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotEntry:
+    """One inventory line: ``sim`` (the Menagerie name of a robot to simulate) or ``address``."""
+
+    sim: str = ""
+    address: str = ""
+
+    def __str__(self) -> str:
+        return f"sim:{self.sim}" if self.sim else self.address
+
+
+def check_address(address: str) -> str:
+    m = _ADDRESS.match(address)
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise InventoryError(f"bad robot address {address!r}: use tcp://HOST:PORT (port 1-65535)")
+    return address
+
+
+def _entry(item: str) -> RobotEntry:
+    if item.startswith("sim:"):
+        name = item[4:]
+        if name not in SIM_ROBOTS:
+            raise InventoryError(f"unknown simulated robot {name!r}; choose one of {sorted(SIM_ROBOTS)}")
+        return RobotEntry(sim=name)
+    if item.startswith("tcp://"):
+        return RobotEntry(address=check_address(item))
+    raise InventoryError(f"bad robot {item!r}: use sim:NAME ({', '.join(sorted(SIM_ROBOTS))}) or tcp://HOST:PORT")
+
+
+def parse(text: str) -> list[RobotEntry]:
+    """``--robots`` (a comma list, or the path of a ``.toml`` file) -> entries (at least one)."""
+    text = text.strip()
+    if text.endswith(".toml"):
+        try:
+            import tomllib
+        except ImportError as e:  # Python 3.10
+            raise InventoryError(f"robot inventory {text!r}: TOML files need Python 3.11+; give a comma list") from e
+        try:
+            with open(text, "rb") as f:
+                doc = tomllib.load(f)
+        except (OSError, tomllib.TOMLDecodeError) as e:
+            raise InventoryError(f"robot inventory {text!r}: {e}") from e
+        rows = doc.get("robot")
+        if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+            raise InventoryError(f"robot inventory {text!r}: needs [[robot]] tables with sim = NAME or address = URL")
+        items = []
+        for r in rows:
+            if set(r) not in ({"sim"}, {"address"}) or not isinstance(next(iter(r.values())), str):
+                raise InventoryError(f"robot inventory {text!r}: each [[robot]] has one key, sim or address, got {r}")
+            items.append(f"sim:{r['sim']}" if "sim" in r else r["address"])
+    else:
+        items = [item.strip() for item in text.split(",")]
+    if not items or any(not item for item in items):
+        raise InventoryError(f"no robots in {text!r}: give e.g. sim:franka_emika_panda,tcp://127.0.0.1:5555")
+    entries = [_entry(item) for item in items]
+    addresses = [e.address for e in entries if e.address]
+    if len(set(addresses)) != len(addresses):
+        raise InventoryError(f"a robot address is listed twice in {text!r}")
+    return entries
+
+
+class LocalServer:
+    """A ``python -m unilab_jax.robots.serve`` subprocess on a free loopback port (no cameras)."""
+
+    def __init__(self, arm: str, task: str, speed: float, seed: int = 0, port: int = 0,
+                 extra: tuple[str, ...] = ("--dense_reward",)):
+        cmd = [sys.executable, "-m", "unilab_jax.robots.serve", f"--robot={arm}", f"--task={task}",
+               f"--speed={speed}", "--cameras=none", "--host=127.0.0.1", f"--port={port}", f"--seed={seed}", *extra]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     env={**os.environ, "OMP_NUM_THREADS": "1"})
+        lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=lambda: lines.put(self.proc.stdout.readline()), daemon=True).start()
+        try:
+            line = lines.get(timeout=START_TIMEOUT_S)
+        except queue.Empty:
+            self.stop()
+            raise InventoryError(f"robot server {arm}/{task} did not start within {START_TIMEOUT_S:.0f} s") from None
+        if not line.startswith("serving "):
+            self.stop()
+            raise InventoryError(f"robot server {arm}/{task} failed to start: {self.proc.stderr.read()[-2000:]}")
+        self.address = line.split(" on ")[1].strip()
+
+    def stop(self) -> int:
+        """SIGTERM, then SIGKILL after 5 s; returns the exit status."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        for stream in (self.proc.stdout, self.proc.stderr):
+            stream.close()
+        return self.proc.returncode
+
+
+class Inventory:
+    """Starts the local servers of ``entries`` (``with Inventory(...) as inv: inv.addresses``); stops them
+    on exit, also when starting one of them fails."""
+
+    def __init__(self, entries: list[RobotEntry], task: str, speed: float, seed: int = 0):
+        self.entries, self.task, self.speed, self.seed = entries, task, speed, seed
+        self.servers: list[LocalServer] = []
+        self.addresses: list[str] = []
+
+    def __enter__(self) -> Inventory:
+        try:
+            for i, e in enumerate(self.entries):
+                if e.sim:
+                    self.servers.append(LocalServer(SIM_ROBOTS[e.sim], self.task, self.speed, seed=self.seed + i))
+                    self.addresses.append(self.servers[-1].address)
+                else:
+                    self.addresses.append(e.address)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        for server in self.servers:
+            server.stop()
+        self.servers = []
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclasses.dataclass(frozen=True)
+class Discovered:
+    address: str
+    spec: RobotSpec
+    health: Health
+
+
+def compatible(a: RobotSpec, b: RobotSpec) -> str:
+    """"" when one policy can drive both robots, else what differs."""
+    diffs = [f"{k} {getattr(a, k)} vs {getattr(b, k)}" for k in ("task", "proprio_dim", "privileged_dim", "action_dim")
+             if getattr(a, k) != getattr(b, k)]
+    return ", ".join(diffs)
+
+
+def discover(addresses: list[str], task: str = "", timeout_s: float = 2.0) -> list[Discovered]:
+    """Each server's spec and health (not claimed). Raises InventoryError for a server that does not
+    answer, a robot serving another ``task`` (when given), or robots that cannot share one policy."""
+    found = []
+    for address in addresses:
+        try:
+            spec, health = query(address, timeout_s=timeout_s)
+        except RobotDisconnected as e:
+            raise InventoryError(f"no robot server answers at {address} ({e})") from e
+        if task and spec.task != task:
+            raise InventoryError(f"{address} serves {spec.name} on task {spec.task!r}, this run needs {task!r}")
+        if found and (diff := compatible(found[0].spec, spec)):
+            raise InventoryError(f"{address} ({spec.name}) cannot share a policy with {found[0].address} "
+                                 f"({found[0].spec.name}): {diff}")
+        found.append(Discovered(address, spec, health))
+    return found
