@@ -237,7 +237,8 @@ def test_close_is_fast_idempotent_and_unlinks(algo):
 
 
 def test_invalid_configuration_fails_before_anything_starts():
-    before = set(list_segments())
+    ours = f"unilab_{os.getpid()}_"  # other test processes (pytest-xdist) create segments meanwhile
+    before = set(list_segments(ours))
     with pytest.raises(ValueError, match="unknown task"):
         WorkerPool("no_such_task", {}, 1, 1, 0, "toy_algo", _weights(0))
     with pytest.raises(ConfigError):
@@ -246,4 +247,4 @@ def test_invalid_configuration_fails_before_anything_starts():
         WorkerPool(TASK, {}, 1, 1, 0, "toy_algo_replay", _weights(0))
     with pytest.raises(ModuleNotFoundError):
         WorkerPool(TASK, {}, 1, 1, 0, "no_such_algo_module", _weights(0))
-    assert set(list_segments()) == before
+    assert set(list_segments(ours)) == before

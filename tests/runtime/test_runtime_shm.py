@@ -93,10 +93,11 @@ def test_cleanup_stale_removes_only_dead_creators():
 
 def test_clear_error_when_dev_shm_is_too_small():
     free = os.statvfs("/dev/shm").f_bavail * os.statvfs("/dev/shm").f_frsize
-    before = set(list_segments())
+    ours = f"unilab_{os.getpid()}_"  # other test processes (pytest-xdist) create segments meanwhile
+    before = set(list_segments(ours))
     with pytest.raises(ShmSpaceError, match="MiB"):
         SharedArrays.create({"x": ((free // 4 + (1 << 28),), np.float32)})
-    assert set(list_segments()) == before
+    assert set(list_segments(ours)) == before
 
 
 def test_fallocate_failure_is_a_clear_error_and_unlinks(monkeypatch):
@@ -104,10 +105,11 @@ def test_fallocate_failure_is_a_clear_error_and_unlinks(monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(shm_mod.os, "posix_fallocate", no_room)
-    before = set(list_segments())
+    ours = f"unilab_{os.getpid()}_"
+    before = set(list_segments(ours))
     with pytest.raises(ShmSpaceError, match="ran out of space"):
         SharedArrays.create({"x": ((1024,), np.float32)})
-    assert set(list_segments()) == before
+    assert set(list_segments(ours)) == before
 
 
 def test_runtime_and_worker_imports_never_load_jax():
