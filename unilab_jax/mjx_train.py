@@ -215,7 +215,10 @@ class MjxTrainer:
             jax.block_until_ready(_accumulate(z, z.astype(jnp.int32), z > 0, z > 0, out.reward, out.terminated,
                                               out.truncated))
 
-        return LearnerThread("jax", name="warm-eval").submit(run)
+        thread = LearnerThread("jax", name="warm-eval")
+        future = thread.submit(run)
+        thread.close()  # the thread ends once the compile is done
+        return future
 
     def _evaluate(self, carry: Any, env_steps: int, evals: int, eval_time: float) -> float:
         """Runs and logs one evaluation; returns the seconds it took."""
