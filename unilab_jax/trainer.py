@@ -314,7 +314,7 @@ class Trainer:
             restore_signals()
         interrupted = interrupted or stop.is_set()
         if not interrupted and evaluated_at != counters["env_steps"]:
-            evaluator.submit(nets.to_numpy(self.learner.weights(state)), dict(counters), time.time() - t_start)
+            evaluator.submit(self._numpy_weights(state), dict(counters), time.time() - t_start)
         last_eval = evaluator.close(cancel=interrupted)
         self.logger.close()
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
