@@ -150,10 +150,12 @@ _REGISTRY: dict[str, _Entry] = {
     "go1_joystick_flat": _builtin("tasks.go1_joystick"),
     "go2_joystick_flat": _builtin("tasks.go2_joystick"),
     "g1_walk_flat": _builtin("tasks.g1_walk"),
+    "allegro_rotate": _builtin("tasks.allegro_rotate"),
     "robot_pick_place": _Entry(_ByName("tasks.robot:make", "pick_place"), _ByName("tasks.robot:default_config")),
     "robot_peg_insertion": _Entry(_ByName("tasks.robot:make", "peg_insertion"),
                                   _ByName("tasks.robot:default_config")),
-    **{f"{name}_hist": _history(name) for name in ("cartpole_balance", "go1_joystick_flat", "go2_joystick_flat")},
+    **{f"{name}_hist": _history(name)
+       for name in ("cartpole_balance", "go1_joystick_flat", "go2_joystick_flat", "allegro_rotate")},
 }
 
 

@@ -24,7 +24,9 @@ def _actions(task, steps, seed=0):
 BUILTIN = [n for n in tasks.names() if tasks.base._REGISTRY[n].factory.__module__.startswith("tasks.")]
 # Robot episodes end only on success or at the robot's time limit (100 steps, which the scripted experts
 # need: 40-60 steps): a shorter limit lets random actions end episodes within the STEPS of this test.
-ROLLOUT_OVERRIDES = {"robot_pick_place": {"episode_length": 40}, "robot_peg_insertion": {"episode_length": 40}}
+# The Allegro object rests on the palm, so random actions rarely drop it: its episodes end at a short limit.
+ROLLOUT_OVERRIDES = {"robot_pick_place": {"episode_length": 40}, "robot_peg_insertion": {"episode_length": 40},
+                     "allegro_rotate": {"episode_length": 40}, "allegro_rotate_hist": {"episode_length": 40}}
 
 
 @pytest.fixture(scope="module", params=BUILTIN)
