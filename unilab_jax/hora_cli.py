@@ -15,7 +15,8 @@ whose ``summary.json`` shows its budget done (not interrupted) is skipped, an un
 then the student continues from its own checkpoints if it has any (keeping the teacher it started from)
 or starts. At the end both policies are evaluated on the student's task with the same seeds (the
 teacher reads the extrinsics, the student never does): ``hora_summary.json`` and
-``hora/{teacher,student}_eval_return``, ``hora/student_to_teacher`` in the student's logs.
+``hora/{teacher,student}_eval_return``, ``hora/student_to_teacher`` in the student's logs (the ratio of
+the script's ``compare_metric``: the evaluation return by default; the Allegro script compares rotation rates).
 """
 
 from __future__ import annotations
@@ -145,8 +146,10 @@ def _compare(plan: dict[str, Any]) -> dict[str, Any]:
         rows = [json.loads(line) for line in f]
     z_rows = [r for r in rows if "loss/z_mse" in r]
     t_ret, s_ret = t_eval["eval/return"], s_eval["eval/return"]
-    ratio = s_ret / t_ret if t_ret > 0 else float("nan")
-    result = {"student_to_teacher": ratio, "eval_envs": s_run.eval_envs, "eval_seed": 10_000 + seed,
+    key = f"eval/{plan['compare_metric']}"
+    ratio = s_eval[key] / t_eval[key] if t_eval[key] > 0 else float("nan")
+    result = {"student_to_teacher": ratio, "compared_metric": plan["compare_metric"], "eval_envs": s_run.eval_envs,
+              "eval_seed": 10_000 + seed,
               "student_env_steps": int(meta["counters"]["env_steps"]),
               "z_mse_first": z_rows[0]["loss/z_mse"] if z_rows else None,
               "z_mse_last": z_rows[-1]["loss/z_mse"] if z_rows else None,
@@ -171,8 +174,12 @@ def _spec(task: str, overrides: Mapping[str, Any]) -> Any:
 
 
 def run_hora(task: str, teacher_recipe: Mapping[str, Any], student_recipe: Mapping[str, Any],
-             task_recipe: Mapping[str, Any], default_teacher_steps: int, default_student_steps: int) -> None:
-    """Parses the flags, validates both stages, trains what is left to train, compares the two policies."""
+             task_recipe: Mapping[str, Any], default_teacher_steps: int, default_student_steps: int,
+             compare_metric: str = "return") -> None:
+    """Parses the flags, validates both stages, trains what is left to train, compares the two policies.
+
+    ``compare_metric``: the evaluation metric (``eval/<name>``, e.g. a task tracker's ``rotation_rate``)
+    whose student / teacher ratio is ``student_to_teacher``."""
 
     def train(plan: dict[str, Any]) -> None:
         from unilab_jax.trainer import Trainer
@@ -193,5 +200,5 @@ def run_hora(task: str, teacher_recipe: Mapping[str, Any], student_recipe: Mappi
         print("hora:", json.dumps(_compare(plan), indent=2))
         print(f"logs: {os.path.abspath(plan['root'])}")
 
-    cli.launch(lambda: _plan(task, teacher_recipe, student_recipe, task_recipe, default_teacher_steps,
-                             default_student_steps), train)
+    cli.launch(lambda: {**_plan(task, teacher_recipe, student_recipe, task_recipe, default_teacher_steps,
+                                default_student_steps), "compare_metric": compare_metric}, train)

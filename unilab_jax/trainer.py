@@ -196,7 +196,10 @@ class Trainer:
                           overrides=self.task_overrides)
         try:
             walking = WalkingTracker(task) if is_locomotion(task) else None
-            step = walking.step if walking is not None else task.step
+            # A task's own evaluation metrics: ``eval_tracker(task)`` with ``step(action)`` and ``metrics()``.
+            own = task.eval_tracker(task) if getattr(task, "eval_tracker", None) is not None else None
+            tracker = walking or own
+            step = tracker.step if tracker is not None else task.step
             obs, _ = task.reset()
             m = self.run.eval_envs
             ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
@@ -220,6 +223,8 @@ class Trainer:
         if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
             metric = walking.result()
             result.update({f"eval/{k}": metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
+        elif own is not None:
+            result.update({f"eval/{k}": v for k, v in own.metrics().items()})
         return result
 
     # -- the loop ----------------------------------------------------------------------------------

@@ -1,0 +1,21 @@
+"""HORA on Allegro in-hand rotation, its own task: a teacher that reads the object's parameters (mass,
+centre of mass, friction, size, shape, position), then a student that infers them from 30 frames of
+proprioceptive history; one command (see unilab_jax/hora_cli.py). The two are compared on rotation rate.
+
+    python experiments/hora_allegro.py --num_workers=15 --envs_per_worker=64 --teacher_steps=60000000 \\
+        --student_steps=10000000 --logdir=runs/hora_allegro
+    python experiments/hora_allegro.py --logdir=runs/hora_allegro --resume   # continues the stage that was cut off
+"""
+
+from ppo_allegro_rotate import RECIPE as PPO_RECIPE
+
+from unilab_jax.hora_cli import run_hora
+
+TASK_RECIPE = {"history_extrinsics": True}
+TEACHER_RECIPE = {**PPO_RECIPE, "encoder_hidden": (256, 128), "z_dim": 8}  # HORA's encoder, 8-dim z
+STUDENT_RECIPE = {"horizon": 16, "learning_rate": 1e-3, "num_epochs": 2, "num_minibatches": 4}
+
+if __name__ == "__main__":
+    run_hora(task="allegro_rotate_hist", teacher_recipe=TEACHER_RECIPE, student_recipe=STUDENT_RECIPE,
+             task_recipe=TASK_RECIPE, default_teacher_steps=60_000_000, default_student_steps=10_000_000,
+             compare_metric="rotation_rate")

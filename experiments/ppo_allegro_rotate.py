@@ -1,0 +1,20 @@
+"""PPO with a privileged critic on Allegro in-hand rotation (tasks/allegro_rotate.py, HORA's task).
+
+The policy sees one proprioceptive frame (joint angles, velocities, previous targets); the critic also
+sees the object's state and its parameters. Evaluations log eval/rotation_rate (rad/s) and
+eval/time_to_fall (fraction of the 400-step episode) beside eval/return.
+
+    python experiments/ppo_allegro_rotate.py --num_workers=15 --envs_per_worker=64 --eval_every=2000000 \\
+        --logdir=runs/ppo_allegro
+"""
+
+from unilab_jax.cli import run_experiment
+
+# HORA's PPO (rl_games): 512-256-128 ELU networks, gamma 0.99, lambda 0.95, 5 epochs, KL-adaptive learning
+# rate, no entropy bonus, unit initial action std (the action scale 1/24 keeps that gentle).
+RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "horizon": 16,
+          "learning_rate": 5e-3, "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.0, "gamma": 0.99,
+          "lam": 0.95, "desired_kl": 0.02, "init_log_std": 0.0}
+
+if __name__ == "__main__":
+    run_experiment(algo="ppo", task="allegro_rotate", recipe=RECIPE, default_total_steps=100_000_000)
