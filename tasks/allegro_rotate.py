@@ -14,12 +14,13 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
 * Control: 20 Hz (ctrl_dt 0.05, 10 substeps), HORA's relative targets:
   ``target = clip(previous target + action_scale * action, joint range)`` with action_scale 1/24.
   Episode 400 steps (20 s), HORA's.
-* Initial state (HORA starts from cached grasps): the object rests on the palm centre with a random yaw,
-  the fingers at the canonical pose ``CANONICAL_POSE`` (+ U(+-0.05) rad): fingers curled over the palm,
-  thumb rotated out. It was chosen by simulation (not a settle at every reset): with the largest object
-  it penetrates no hand geom by more than 2 mm, and under zero actions no object fell in 8 envs x 100
-  steps; a thumb rotated further in (0.6-1.0 rad) intersected the object and pushed it off the palm. The
-  targets start at the reset pose.
+* Initial state (HORA starts from cached grasps): the object rests on the palm (``PALM_CENTER``, 3 cm from
+  the finger roots) with a random yaw, the hand at the canonical pose ``CANONICAL_POSE`` (+ U(+-0.05) rad):
+  fingers raised beside the object and curled over it, thumb rotated out. It was chosen by simulation
+  instead of a settle at every reset: with the smallest object the fingers are 3-13 mm from it, with the
+  largest cylinder no hand geom penetrates it by more than ~2 mm, and under zero actions no object fell
+  (8 envs x 100 steps per size); a thumb rotated further in (0.6-1.0 rad) intersected the object and
+  pushed it off the palm. The targets start at the reset pose.
 * Objects, drawn per episode (each env simulates its own ``MjModel`` copy, whose object fields are
   rewritten at its reset; nothing is recompiled): shape uniform over ``config.shapes``; size scale
   U(0.85, 1.1) of the nominal cylinder (radius 0.03, half-height 0.025) / box (half-sides 0.026, 0.026,
@@ -79,8 +80,8 @@ FRAME_DIM = 3 * NJ  # 48
 EXTRINSICS_DIM = 1 + 3 + 1 + 1 + len(SHAPES) + 3  # 11
 CRITIC_OBS_DIM = FRAME_DIM + 3 + 4 + 3 + 3 + NJ + EXTRINSICS_DIM  # 88
 # Index / middle / ring: spread 0, proximal, medial, distal; thumb: rotation, abduction, medial, distal.
-CANONICAL_POSE = (0.0, 1.1, 0.9, 0.6) * 3 + (0.3, 0.4, 0.3, 0.3)
-PALM_CENTER = (-0.045, 0.0)  # world xy of the object's rest position (the palm's middle)
+CANONICAL_POSE = (0.0, 1.3, 0.6, 0.4) * 3 + (0.3, 0.4, 0.3, 0.3)
+PALM_CENTER = (-0.03, 0.0)  # world xy of the object's rest position (on the palm, 3 cm from the finger roots)
 PALM_TOP = 0.0114  # world z of the palm collision box's upper face
 NOMINAL_SIZE = {"cylinder": (0.03, 0.025, 0.0), "box": (0.026, 0.026, 0.025)}
 ARMATURE = 1e-3  # rotor inertia: keeps kp 3 on the ~2e-5 kg m^2 finger links stable at sim_dt 0.005
