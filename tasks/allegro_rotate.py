@@ -6,8 +6,9 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   The hand is palm up as Menagerie places it (fingers along world +x, flexion curls them up). Its scene
   object and floor are removed; an ``object`` body with a free joint holds one geom per shape in
   ``config.shapes`` (an upright cylinder and/or a box). Only object-hand contacts exist (hand geoms
-  contype 1 / conaffinity 0, object geoms 0 / 1; the object has priority, so its friction applies;
-  condim 3). Visual meshes are stripped after the bodies' inertials are fixed from the full model.
+  contype 1 / conaffinity 0, object geoms 0 / 1; condim 3; the object has priority over the fingers, so
+  its friction applies there, and the palm over the object). Visual meshes are stripped after the
+  bodies' inertials are fixed from the full model.
   Position actuators ``tau = kp (target - q) - kd qdot`` with HORA's gains (kp 3, kd 0.1), torque
   limit 0.7 N m, joint damping 0 (kd is the actuator's), armature 1e-3 (see ``ARMATURE``); sim_dt 0.005,
   ``implicitfast``, Newton 20 / 10 iterations, pyramidal cone (MJX needs it).
@@ -16,11 +17,14 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   Episode 400 steps (20 s), HORA's.
 * Initial state (HORA starts from cached grasps): the object rests on the palm (``PALM_CENTER``, 3 cm from
   the finger roots) with a random yaw, the hand at the canonical pose ``CANONICAL_POSE`` (+ U(+-0.05) rad):
-  fingers raised beside the object and curled over it, thumb rotated out. It was chosen by simulation
-  instead of a settle at every reset: with the smallest object the fingers are 3-13 mm from it, with the
-  largest cylinder no hand geom penetrates it by more than ~2 mm, and under zero actions no object fell
-  (8 envs x 100 steps per size); a thumb rotated further in (0.6-1.0 rad) intersected the object and
-  pushed it off the palm. The targets start at the reset pose.
+  fingers raised beside the object with the fingertips curled over its top edge, thumb rotated out. It was
+  chosen by simulation instead of a settle at every reset (a scan of finger poses by the fingers' distance
+  to the nominal object: middle finger 0.2 mm, index / ring 5 mm away): with the largest object no hand
+  geom penetrates it by more than 1.2 mm, and under zero actions no object fell (8 envs x 100 steps, the
+  smallest and the largest size); a thumb rotated further in (0.6-1.0 rad) intersected the object and
+  pushed it off the palm. The targets start at the reset pose. The palm's contacts use its own low
+  friction (0.2, ``PALM_FRICTION``; the fingers' use the object's), so the fingers can turn an object
+  that rests on it.
 * Objects, drawn per episode (each env simulates its own ``MjModel`` copy, whose object fields are
   rewritten at its reset; nothing is recompiled): shape uniform over ``config.shapes``; size scale
   U(0.85, 1.1) of the nominal cylinder (radius 0.03, half-height 0.025) / box (half-sides 0.026, 0.026,
@@ -80,10 +84,11 @@ FRAME_DIM = 3 * NJ  # 48
 EXTRINSICS_DIM = 1 + 3 + 1 + 1 + len(SHAPES) + 3  # 11
 CRITIC_OBS_DIM = FRAME_DIM + 3 + 4 + 3 + 3 + NJ + EXTRINSICS_DIM  # 88
 # Index / middle / ring: spread 0, proximal, medial, distal; thumb: rotation, abduction, medial, distal.
-CANONICAL_POSE = (0.0, 1.3, 0.6, 0.4) * 3 + (0.3, 0.4, 0.3, 0.3)
+CANONICAL_POSE = (0.0, 1.2, 1.2, 0.8) * 3 + (0.3, 0.4, 0.3, 0.3)
 PALM_CENTER = (-0.03, 0.0)  # world xy of the object's rest position (on the palm, 3 cm from the finger roots)
 PALM_TOP = 0.0114  # world z of the palm collision box's upper face
 NOMINAL_SIZE = {"cylinder": (0.03, 0.025, 0.0), "box": (0.026, 0.026, 0.025)}
+PALM_FRICTION = 0.2  # the palm's contacts use it (priority 2): a low-friction support the fingers turn the object on
 ARMATURE = 1e-3  # rotor inertia: keeps kp 3 on the ~2e-5 kg m^2 finger links stable at sim_dt 0.005
 PARKED = -1.0  # z offset (m) of the inactive shape's geom
 
@@ -162,6 +167,8 @@ def build_spec(config: AllegroRotateConfig) -> mujoco.MjSpec:
     spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
     for g in spec.geoms:
         g.contype, g.conaffinity, g.margin = 1, 0, 0.0
+    palm = next(g for g in spec.geoms if g.parent.name == "palm")
+    palm.priority, palm.friction = 2, [PALM_FRICTION, 0.005, 0.0001]
     for j in spec.joints:
         j.damping = np.zeros_like(np.asarray(j.damping))
         j.armature = ARMATURE
