@@ -55,9 +55,11 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
 
 The observation/reward math is module-level functions written against the shim (``step_math``,
 ``observe``, ``reward_terms``, ``object_fields``), which ``tasks/mjx_allegro.py`` runs on jax arrays.
-Deviation: ``HistoryTask`` appends the extrinsics read after the auto-reset, so an ended env's
-``next_obs`` extrinsics (its object position) are the new episode's; this task's own critic observation
-has the true successor's.
+Deviations from HORA: the object rests on the palm instead of being held by the fingertips alone (no grasp
+cache to generate; a still hand does not drop it, so rotation, not holding, is what must be learned); the
+fall penalty is ours. In the history variant, ``HistoryTask`` appends the extrinsics read after the
+auto-reset, so an ended env's ``next_obs`` extrinsics (its object position) are the new episode's; this
+task's own critic observation has the true successor's.
 """
 
 from __future__ import annotations
