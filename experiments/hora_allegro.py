@@ -8,10 +8,11 @@ proprioceptive history; one command (see unilab_jax/hora_cli.py). The two are co
 """
 
 from ppo_allegro_rotate import RECIPE as PPO_RECIPE
+from ppo_allegro_rotate import TASK_RECIPE as PPO_TASK_RECIPE
 
 from unilab_jax.hora_cli import run_hora
 
-TASK_RECIPE = {"history_extrinsics": True}
+TASK_RECIPE = {**PPO_TASK_RECIPE, "history_extrinsics": True}  # rotation and fall terms only, as the PPO recipe
 TEACHER_RECIPE = {**PPO_RECIPE, "encoder_hidden": (256, 128), "z_dim": 8}  # HORA's encoder, 8-dim z
 STUDENT_RECIPE = {"horizon": 16, "learning_rate": 1e-3, "num_epochs": 2, "num_minibatches": 4}
 

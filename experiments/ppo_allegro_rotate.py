@@ -16,5 +16,12 @@ RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "ho
           "learning_rate": 5e-3, "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.0, "gamma": 0.99,
           "lam": 0.95, "desired_kl": 0.02, "init_log_std": 0.0}
 
+# Trained on the rotation and fall terms only: with HORA's penalty scales (the task's defaults), and with a
+# tenth of them, PPO settled on a still hand within 0.6-1.5M steps and never rotated the object, while
+# without them the rotation term rose from 0 to ~0.013 per step by 0.7M steps (dev VM, README "In-hand
+# rotation (Allegro)"). Put the penalties back with --task_config=scale_pose_diff=-0.3 etc.
+TASK_RECIPE = {"scale_object_linvel": 0.0, "scale_pose_diff": 0.0, "scale_torque": 0.0, "scale_work": 0.0}
+
 if __name__ == "__main__":
-    run_experiment(algo="ppo", task="allegro_rotate", recipe=RECIPE, default_total_steps=100_000_000)
+    run_experiment(algo="ppo", task="allegro_rotate", recipe=RECIPE, task_recipe=TASK_RECIPE,
+                   default_total_steps=100_000_000)
