@@ -36,7 +36,7 @@ import numpy as np
 
 from unilab_jax import algos, nets
 from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
-from unilab_jax.metrics import MetricLogger, ProgressBar
+from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.xp import tree_leaves
 
@@ -219,7 +219,8 @@ class Trainer:
                   "eval/episode_length": float(length.mean())}
         if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
             metric = walking.result()
-            result.update({f"eval/{k}": metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
+            result.update({f"eval/{k}": metric[k] for k in WALKING.KEYS})
+            result["eval/walking"] = float(WALKING.met(metric))  # 1: meets the walking criterion
         return result
 
     # -- the loop ----------------------------------------------------------------------------------
