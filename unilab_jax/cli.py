@@ -61,6 +61,8 @@ flags.DEFINE_enum("utd_mode", "hold", ["hold", "free"], "off-policy: hold pauses
                   "more than --utd_window env steps behind the recipe's update-to-data ratio; free never pauses them")
 flags.DEFINE_integer("utd_window", 0, "with --utd_mode=hold: env steps the workers may run ahead of the ratio "
                      "(0: four learner calls' worth)")
+flags.DEFINE_integer("pin_cpus", -1, "worker CPU affinity: -1 none; K >= 0: each worker pinned to its share of the "
+                     "usable cores except the first K, which stay free for the learner process")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
@@ -116,6 +118,10 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError("--replay_on_device=on needs an off-policy algorithm, --platform=jax and no --replay_dir")
     if not 0.0 <= FLAGS.replay_hot_fraction <= 1.0:
         raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {FLAGS.replay_hot_fraction}")
+    usable = len(os.sched_getaffinity(0))
+    if not -1 <= FLAGS.pin_cpus < usable:
+        raise FlagError(f"--pin_cpus must be -1 (off) or leave the workers at least one of the {usable} usable "
+                        f"cores, got {FLAGS.pin_cpus}")
     if FLAGS.utd_window < 0:
         raise FlagError(f"--utd_window must be >= 0, got {FLAGS.utd_window}")
     if FLAGS.utd_window and (module.BUFFER != "replay" or FLAGS.utd_mode != "hold"):
@@ -138,7 +144,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial, replay_dir=FLAGS.replay_dir,
                     replay_disk_gb=FLAGS.replay_disk_gb, replay_hot_fraction=FLAGS.replay_hot_fraction,
                     replay_chunk_rows=FLAGS.replay_chunk_rows, replay_on_device=FLAGS.replay_on_device,
-                    utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window)
+                    utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window, pin_cpus=FLAGS.pin_cpus)
     return run, module, config, task_overrides
 
 

@@ -74,6 +74,9 @@ class RunConfig:
     # run on (a learner slower than ``utd`` x the env rate then trains below the ratio). See _ReplaySource.
     utd_mode: str = "hold"
     utd_window: int = 0  # env steps the workers may run ahead of the ratio (0: four learner calls' worth)
+    # Worker CPU affinity: -1 none; K >= 0: workers pinned to the usable CPUs except the first K, which stay free
+    # for the learner process (runtime/pool.py cpu_placement).
+    pin_cpus: int = -1
 
 
 def _learner_platform(platform: str) -> Any:
@@ -226,7 +229,7 @@ class Trainer:
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
         from unilab_jax.checkpoint import Checkpointer
-        from unilab_jax.runtime.pool import WorkerPool
+        from unilab_jax.runtime.pool import WorkerPool, cpu_placement
 
         run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
         evaluator = _AsyncEvaluator(self, stop)
@@ -243,7 +246,9 @@ class Trainer:
                           horizon=getattr(cfg, "horizon", 32), serial=run.serial,
                           replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
                           if replay else 0,
-                          max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
+                          max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None,
+                          worker_cpus=cpu_placement(run.num_workers, run.pin_cpus)
+                          if run.pin_cpus >= 0 and not run.serial else None)
         ckpt = Checkpointer(self.ckpt_dir)
         restore_signals = stop_on_signals(stop)
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
