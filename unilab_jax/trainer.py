@@ -94,14 +94,17 @@ def _donated(tree: Any) -> bool:
 class Trainer:
     _STOP_GRACE_S = 2.0  # after a stop, how long the loop still waits for the update in flight
     def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
-                 start_time: float | None = None):
+                 start_time: float | None = None, eval_overrides: dict[str, Any] | None = None):
         """``start_time``: wall clock that ``time/wall_s`` and ``eval/wall_s`` count from (the process
-        start when launched from the CLI, so compilation and worker start-up are included)."""
+        start when launched from the CLI, so compilation and worker start-up are included).
+        ``eval_overrides``: task overrides added for evaluations only (e.g. robot tasks evaluating on
+        the robots that answer, ``min_envs``)."""
         import tasks
 
         self.t0 = time.time() if start_time is None else start_time
 
         self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, task_overrides
+        self.eval_overrides = {**task_overrides, **(eval_overrides or {})}
         probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
         self.spec = probe.spec
         probe.close()
@@ -190,20 +193,21 @@ class Trainer:
 
     # -- evaluation ------------------------------------------------------------------------------
     def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
-        """Deterministic policy, one full episode in each of ``eval_envs`` environments; raises
-        :class:`StopRequested` when ``stop`` is set before it ends."""
+        """Deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the
+        task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
+        before it ends."""
         import tasks
         from tasks.walking import WalkingTracker, is_locomotion
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
-                          overrides=self.task_overrides)
+                          overrides=self.eval_overrides)
         try:
             walking = WalkingTracker(task) if is_locomotion(task) else None
             step = walking.step if walking is not None else task.step
             obs, _ = task.reset()
-            m = self.run.eval_envs
+            m = task.num_envs
             ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
-            alive = np.ones(m, dtype=bool)
+            alive, terminated = np.ones(m, dtype=bool), np.zeros(m, dtype=bool)
             zeros = np.zeros((m, self.spec.action_dim), np.float32)
             for _ in range(self.spec.episode_length):
                 if stop is not None and stop.is_set():
@@ -212,6 +216,7 @@ class Trainer:
                 out = step(np.asarray(action, np.float32))
                 ret += np.where(alive, out.reward, 0.0)
                 length += alive
+                terminated |= alive & out.terminated
                 alive &= ~(out.terminated | out.truncated)
                 obs = out.obs
                 if not alive.any():
@@ -219,7 +224,9 @@ class Trainer:
         finally:
             task.close()
         result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
-                  "eval/episode_length": float(length.mean())}
+                  "eval/episode_length": float(length.mean()), "eval/episodes": float(m)}
+        if self.spec.success_on_termination:
+            result["eval/success_rate"] = float(terminated.mean())
         if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
             metric = walking.result()
             result.update({f"eval/{k}": metric[k] for k in WALKING.KEYS})
@@ -286,6 +293,8 @@ class Trainer:
                                 "perf/publish_s": time.perf_counter() - t_publish})
                 scalars.update(stats["scalars"])
                 scalars.update(source.pool_scalars())
+                if self.spec.success_on_termination and "episode/terminated_fraction" in scalars:
+                    scalars["episode/success_rate"] = scalars["episode/terminated_fraction"]
                 scalars.update({"perf/env_steps_per_s": (counters["env_steps"] - steps_last) / max(now - t_last, 1e-9),
                                 "perf/learner_updates_per_s": 1.0 / max(now - t_last, 1e-9),
                                 "time/wall_s": now - t_start})
@@ -818,6 +827,7 @@ class _ReplaySource:
         if st["recent_episode_returns"].size:
             out["episode/return"] = st["episode_return_mean"]
             out["episode/length"] = st["episode_length_mean"]
+            out["episode/terminated_fraction"] = st["episode_terminated_fraction"]
         out.update({f"reward/{k}": v for k, v in st["reward_terms"].items()})
         return out
 
