@@ -184,7 +184,12 @@ def _recipe(path: str) -> dict:
 
     spec = importlib.util.spec_from_file_location("_bench_recipe", path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    folder = os.path.dirname(os.path.abspath(path))
+    sys.path.insert(0, folder)  # recipes build on each other (flashsac_go2 imports flashsac_go1's)
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(folder)
     return dict(module.RECIPE)
 
 
