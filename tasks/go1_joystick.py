@@ -134,7 +134,6 @@ class Go1JoystickConfig:
     dr_motor_strength: tuple[float, float] = (1.0, 1.0)  # per-motor PD torque scale; (1, 1): off (parity)
     physics_engine: str = "rollout"  # "rollout" or "step" (tasks/physics.py)
     sensors_every_substep: bool = False  # False: skip sensors on inner substeps where faster
-    physics_threads: int = 1  # MuJoCo threads stepping this instance's envs (tasks/physics.py, rollout engine)
     integrator: str = "euler"  # DESIGN.md: Euler; Playground's newest XML uses "implicitfast"
     dr_pose_offset_on_targets: bool = True  # see the module docstring
 
@@ -647,7 +646,7 @@ class Go1JoystickFlat(base.Task):
         self.extrinsics = self._extrinsics()
         models = self._apply_dr() if c.domain_randomization else None
         self.sim = BatchedSim(m, M, nsub, engine=c.physics_engine, models=models,
-                              sensors_every_substep=c.sensors_every_substep, nthread=c.physics_threads)
+                              sensors_every_substep=c.sensors_every_substep)
         self.spec = base.TaskSpec(
             name="go1_joystick_flat", obs_dim=OBS_DIM, critic_obs_dim=CRITIC_OBS_DIM, action_dim=m.nu,
             episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=REWARD_TERMS,

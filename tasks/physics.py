@@ -15,9 +15,6 @@ one control step (``nsub`` physics substeps under a zero-order-hold control) per
   ``num_envs`` C calls); warnings come from ``data.warning`` counters.
 
 Both take per-env models (``models=[...]``, same size signature) for domain randomisation.
-``nthread > 1`` (rollout engine only) splits each ``mujoco.rollout`` call over a pool of that many MuJoCo
-threads (one ``MjData`` each): one worker process then steps its envs on several cores. Each env's
-trajectory does not depend on the thread that runs it, so results are identical to ``nthread=1``.
 
 Measured with ``MENAGERIE_ROOT=... taskset -c 1 python -m tasks.physics [num_envs]``
 (go1_joystick_flat with its default domain randomisation, i.e. per-env models; feet-only contacts,
@@ -86,12 +83,9 @@ class BatchedSim:
         engine: str = "rollout",
         models: Sequence[mujoco.MjModel] | None = None,
         sensors_every_substep: bool = False,
-        nthread: int = 1,
     ):
         if engine not in ENGINES:
             raise ValueError(f"unknown physics engine {engine!r}; choose one of {ENGINES}")
-        if nthread < 1 or (nthread > 1 and engine != "rollout"):
-            raise ValueError(f"nthread must be >= 1 (> 1 with the rollout engine only), got {nthread} for {engine!r}")
         if models is not None and len(models) != num_envs:
             raise ValueError(f"need one model per env: got {len(models)} for {num_envs} envs")
         self.model = model
@@ -134,9 +128,7 @@ class BatchedSim:
             self.datas = [mujoco.MjData(mm) for mm in self._data_models]
         else:
             self.datas = []
-            # nthread=0: the calling thread runs the rollout (no pool); else one MjData per pool thread.
-            self._rollout = mujoco.rollout.Rollout(nthread=nthread if nthread > 1 else 0)
-            self._rollout_datas = [mujoco.MjData(m) for _ in range(nthread)] if nthread > 1 else [self._scratch]
+            self._rollout = mujoco.rollout.Rollout(nthread=0)
         # Per phase: (sensors on, nstep, ctrl [M, nstep, nu], state out [M, nstep, nstate], sensors out).
         self._phases = [
             (on, n, np.zeros((M, n, self.nu)), np.zeros((M, n, self.nstate)), np.zeros((M, n, self.ns)))
@@ -244,7 +236,7 @@ class BatchedSim:
                 ctrl_buf[:] = ctrl[:, None, :]
                 self._rollout.rollout(
                     self._data_models,
-                    self._rollout_datas,
+                    [self._scratch],
                     self.state,
                     ctrl_buf,
                     control_spec=mujoco.mjtState.mjSTATE_CTRL.value,

@@ -79,7 +79,6 @@ class WalkingConfig:
     domain_randomization: bool = True
     physics_engine: str = "rollout"  # "rollout" or "step" (tasks/physics.py)
     sensors_every_substep: bool = False
-    physics_threads: int = 1  # MuJoCo threads stepping this instance's envs (tasks/physics.py, rollout engine)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -377,7 +376,7 @@ class WalkingTask(base.Task):
                 self.randomize_model(mi, i)
                 models.append(mi)
         self.sim = BatchedSim(m, M, nsub, engine=c.physics_engine, models=models,
-                              sensors_every_substep=c.sensors_every_substep, nthread=c.physics_threads)
+                              sensors_every_substep=c.sensors_every_substep)
         # Per-env episode state.
         self.command = np.zeros((M, 3))
         self.last_act = np.zeros((M, n))
