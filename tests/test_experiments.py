@@ -49,6 +49,7 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     ("--total_steps=-5", "--total_steps must be positive"),
     ("--utd_window=-1", "--utd_window must be >= 0"),
     ("--utd_window=4096", "--utd_window needs an off-policy algorithm"),
+    ("--pin_cpus=-2", "--pin_cpus must be -1 (off)"),
 ])
 def test_invalid_flags_fail_before_workers_start(tmp_path, flag, message):
     out = _run("ppo_cartpole.py", flag, f"--logdir={tmp_path / 'x'}", timeout=120)
