@@ -107,6 +107,7 @@ class GymTask(base.Task):
         self.envs = gym.vector.SyncVectorEnv([lambda e=e: e for e in envs],
                                              autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
         self._seeds = [int(s) for s in np.random.SeedSequence(self.seed).generate_state(num_envs)]
+        self._view: Any = None  # render-only MjData of render_scene, made on first use
 
     def _flat(self, obs: np.ndarray) -> np.ndarray:
         return np.asarray(obs, dtype=np.float32).reshape(self.num_envs, -1)
@@ -132,6 +133,25 @@ class GymTask(base.Task):
         reward = np.asarray(reward, dtype=np.float32)
         return base.StepOut(obs, obs.copy(), next_obs, next_obs.copy(), reward, term, trunc,
                             {"reward": reward.copy()})
+
+    def render_scene(self, env: int = 0) -> tuple[Any, Any]:
+        """(model, data) of env ``env`` for ``mujoco.Renderer`` (``unilab_jax.play``): Gymnasium's MuJoCo
+        environments only. A render-only MjData gets the env's full state and its kinematics (``mj_forward``),
+        so rendering never touches the simulation."""
+        import mujoco
+
+        inner = self.envs.envs[env].unwrapped
+        model, data = getattr(inner, "model", None), getattr(inner, "data", None)
+        if not isinstance(model, mujoco.MjModel) or not isinstance(data, mujoco.MjData):
+            raise NotImplementedError(f"{self.spec.name} is not a MuJoCo environment: no scene to render")
+        if self._view is None or self._view.model is not model:
+            self._view = mujoco.MjData(model)
+        kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        state = np.empty(mujoco.mj_stateSize(model, kind))
+        mujoco.mj_getState(model, data, state, kind)
+        mujoco.mj_setState(model, self._view, state, kind)
+        mujoco.mj_forward(model, self._view)
+        return model, self._view
 
     def close(self) -> None:
         self.envs.close()

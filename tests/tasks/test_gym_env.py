@@ -77,6 +77,25 @@ def test_termination_stays_apart_from_truncation():
     task.close()
 
 
+def test_mujoco_envs_render_from_a_copy_of_their_state():
+    task = tasks.make("gym:HalfCheetah-v5", num_envs=2, seed=0)
+    task.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        task.step(rng.uniform(-1, 1, (2, 6)).astype(np.float32))
+    inner = task.envs.envs[1].unwrapped
+    qpos = inner.data.qpos.copy()
+    model, view = task.render_scene(1)
+    assert model is inner.model and view is not inner.data
+    np.testing.assert_array_equal(view.qpos, qpos)
+    np.testing.assert_array_equal(inner.data.qpos, qpos)  # the simulation is untouched
+    torso = model.body("torso").id
+    assert view.xpos[torso, 0] == pytest.approx(qpos[0] + model.body_pos[torso, 0])  # kinematics computed
+    task.close()
+    with pytest.raises(NotImplementedError, match="not a MuJoCo environment"):
+        tasks.make("gym:Pendulum-v1", num_envs=1).render_scene(0)
+
+
 def test_episode_length_override_sets_the_time_limit():
     task = tasks.make("gym:Pendulum-v1", num_envs=2, seed=0, overrides={"episode_length": 5})
     assert task.spec.episode_length == 5
