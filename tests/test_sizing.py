@@ -57,7 +57,8 @@ def test_auto_flags_reach_the_run_config(tmp_path, capsys):
     recipe = sizing.SizedFor("a test machine", 4, 16)
     run = _build(["--num_workers=auto", f"--logdir={tmp_path}"], recipe)
     assert (run.num_workers, run.envs_per_worker) == (workers, math.ceil(64 / workers))
-    assert (f"sized for this machine: {workers} workers x {math.ceil(64 / workers)} envs ({cores} cores; "
+    plural = "s" if workers != 1 else ""
+    assert (f"sized for this machine: {workers} worker{plural} x {math.ceil(64 / workers)} envs ({cores} cores; "
             "the recipe was sized for 4 workers x 16 envs on a test machine)") in capsys.readouterr().out
     # An explicit envs_per_worker stays; auto envs with explicit workers split the recipe over them.
     run = _build(["--num_workers=auto", "--envs_per_worker=8", f"--logdir={tmp_path}"], recipe)

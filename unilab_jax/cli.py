@@ -115,8 +115,9 @@ def size_for_machine(sized_for: sizing.SizedFor | None) -> None:
         raise FlagError(f"--num_workers must be at least 1, got {FLAGS.num_workers}")
     if auto_envs:
         FLAGS.envs_per_worker = sizing.auto_envs_per_worker(recipe.total_envs, FLAGS.num_workers)
-    print(f"sized for this machine: {FLAGS.num_workers} workers x {FLAGS.envs_per_worker} envs ({cores} cores; "
-          f"the recipe was sized for {recipe})", flush=True)
+    workers = f"{FLAGS.num_workers} worker{'s' if FLAGS.num_workers != 1 else ''}"
+    print(f"sized for this machine: {workers} x {FLAGS.envs_per_worker} envs ({cores} cores; the recipe was sized "
+          f"for {recipe})", flush=True)
 
 
 def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
