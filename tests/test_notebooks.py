@@ -34,21 +34,23 @@ def _has_png(outputs: list) -> bool:
     return any("image/png" in o.get("data", {}) for o in outputs)
 
 
-def _clip_frames(outputs: list, text: str, expected: int) -> None:
+def _clip_frames(outputs: list, text: str, most: int) -> None:
+    """An embedded video of one episode, cut at ``most`` steps (an earlier fall or termination ends it)."""
     assert any("<video" in o.get("data", {}).get("text/html", "") for o in outputs)
     match = re.search(r"clip: (\d+) frames of 320x240", text)
-    assert match and int(match.group(1)) == expected, text[-2000:]
+    assert match and 10 <= int(match.group(1)) <= most, text[-2000:]
 
 
-# The quick starts' CI budgets (seed 0, 2-core VM): JAX 30k env steps -> evaluation 168 (75 at 10k);
-# MLX 20k -> 93 (85 at 10k). Random policy ~35; the checks ask for 60.
+# The quick starts' CI budgets, final evaluation (8 envs) on the 2-core VM: JAX 30k env steps, seeds 0-5:
+# 167, 197, 156, 129, 188, 185; MLX 20k, seeds 0-3: 93, 105, 138, 96 (the notebooks run seed 0). Random
+# policy ~35; the checks ask for 55 (38 below the worst seed).
 @pytest.mark.parametrize("name", ["quickstart.ipynb", "mlx_quickstart.ipynb"])
 def test_quickstart_notebooks(tmp_path, monkeypatch, name):
     outputs, text = _execute(name, tmp_path, monkeypatch)
     assert _has_png(outputs)
     final = re.search(r"final evaluation return: ([-0-9.]+) after (\d+) env steps", text)
-    assert final and float(final.group(1)) > 60.0 and int(final.group(2)) >= 20_000, text[-3000:]
-    _clip_frames(outputs, text, expected=100)
+    assert final and float(final.group(1)) > 55.0 and int(final.group(2)) >= 20_000, text[-3000:]
+    _clip_frames(outputs, text, most=100)
     logdir = tmp_path / ("ppo_cartpole_mlx" if "mlx" in name else "ppo_cartpole")
     assert (logdir / "policy.mp4").stat().st_size > 1000 and (logdir / "summary.json").is_file()
 
@@ -61,4 +63,4 @@ def test_locomotion_notebook(tmp_path, monkeypatch):
     assert _has_png(outputs)  # the per-term reward plot
     terms = re.findall(r"^\s+(\w+)\s+([-0-9.]+)$", text, flags=re.MULTILINE)
     assert {"tracking_lin_vel", "tracking_ang_vel"} <= {t for t, _ in terms}
-    _clip_frames(outputs, text, expected=50)
+    _clip_frames(outputs, text, most=50)
