@@ -1,5 +1,6 @@
 """``python -m unilab_jax.export`` and ``python -m unilab_jax.play`` on the checkpoint of a tiny ppo_go1.py run,
-as a user runs them (subprocesses). The run is shared by the tests of this file."""
+as a user runs them (subprocesses), and that run's ``--video_every`` clips. The run is shared by the tests of
+this file (about 20 s on the 2-core VM)."""
 
 from __future__ import annotations
 
@@ -23,7 +24,8 @@ def _run(args, timeout=600):
 def go1_run(tmp_path_factory):
     logdir = str(tmp_path_factory.mktemp("ppo_go1") / "run")
     out = _run([os.path.join(ROOT, "experiments", "ppo_go1.py"), "--total_steps=1500", "--num_workers=1",
-                "--envs_per_worker=16", "--eval_envs=2", "--task_config=episode_length=100", f"--logdir={logdir}"])
+                "--envs_per_worker=16", "--eval_envs=2", "--task_config=episode_length=100", "--video_every=768",
+                f"--logdir={logdir}"])
     assert out.returncode == 0, out.stderr[-3000:]
     return logdir
 
@@ -81,3 +83,21 @@ def test_play_writes_a_video_of_the_policy(go1_run, tmp_path):
 def test_play_refuses_a_missing_checkpoint(go1_run):
     done = _run(["-m", "unilab_jax.play", "--logdir", go1_run, "--checkpoint", "7"])
     assert done.returncode == 2 and "no checkpoint of step 7" in done.stderr and "steps: [" in done.stderr
+
+
+def test_video_every_writes_clips_during_training(go1_run):
+    import imageio.v3 as iio
+
+    # Updates of 24 steps x 16 envs = 384 env steps: clips are due at 768 and 1536 (the last update).
+    names = sorted(os.listdir(os.path.join(go1_run, "videos")))
+    assert names == ["step_1536.mp4", "step_768.mp4"], names
+    frames = iio.imread(os.path.join(go1_run, "videos", "step_768.mp4"))
+    assert 2 <= len(frames) <= 100 and frames.shape[1:] == (240, 320, 3)  # one episode (length 100) at most
+    events = [n for n in os.listdir(go1_run) if n.startswith("events.out.tfevents")]
+    assert any(b"eval/clip" in open(os.path.join(go1_run, n), "rb").read() for n in events)
+
+
+def test_video_every_must_not_be_negative():
+    done = _run([os.path.join(ROOT, "experiments", "ppo_go1.py"), "--video_every=-5"])
+    assert done.returncode == 2 and "--video_every must be >= 0" in done.stderr
+

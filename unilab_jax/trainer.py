@@ -59,6 +59,7 @@ class RunConfig:
     eval_every: int = 0  # env steps between evaluations (0: only at the end)
     eval_envs: int = 16
     checkpoint_every: int = 0  # env steps between checkpoints (0: at evaluations and at the end)
+    video_every: int = 0  # env steps between clips of an evaluation episode (unilab_jax.play.ClipRecorder; 0: none)
     serial: bool = False  # run the workers in-process (debugging, deterministic tests)
     # Persistent replay (off-policy algorithms; unilab_jax/runtime/replay_store.py): every transition is
     # also written to a crash-safe store in replay_dir, which --resume reopens.
@@ -232,6 +233,11 @@ class Trainer:
         learner = LearnerThread(run.platform)
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
+        clips = None
+        if run.video_every:
+            from unilab_jax.play import ClipRecorder
+
+            clips = ClipRecorder(self, run.video_every, counters["env_steps"])
         replay = self.algo.BUFFER == "replay"
         hold_window = self._hold_window(cfg) if replay else None
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
@@ -292,6 +298,8 @@ class Trainer:
                     evaluated_at = counters["env_steps"]
                     next_eval += run.eval_every
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+                if clips is not None and clips.due(counters["env_steps"]):
+                    clips.submit(learner.call(stop, self._numpy_weights, state), counters["env_steps"])
                 if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                     next_ckpt += run.checkpoint_every
@@ -316,6 +324,8 @@ class Trainer:
         if not interrupted and evaluated_at != counters["env_steps"]:
             evaluator.submit(self._numpy_weights(state), dict(counters), time.time() - t_start)
         last_eval = evaluator.close(cancel=interrupted)
+        if clips is not None:
+            clips.close(cancel=interrupted)
         self.logger.close()
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
                    "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
