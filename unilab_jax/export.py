@@ -278,23 +278,18 @@ def to_onnx(g: Graph, output: str, obs_dim: int, action_dim: int, doc: str = "")
     return model
 
 
+_NUMPY_FORMS = {"add": "{0} + {1}", "sub": "{0} - {1}", "mul": "{0} * {1}", "div": "{0} / {1}", "matmul": "{0} @ {1}",
+                "max": "np.maximum({0}, {1})", "relu": "np.maximum({0}, 0)", "tanh": "np.tanh({0})",
+                "sqrt": "np.sqrt({0})", "sigmoid": "1 / (1 + np.exp(-{0}))",
+                "elu": "np.where({0} > 0, {0}, np.expm1(np.minimum({0}, 0)))"}  # the shim's numpy elu
+
+
 def _numpy_line(op: str, out: str, ins: list[str], at: dict[str, Any], ref: Callable[[str], str]) -> str:
     a = [ref(i) for i in ins]
-    infix = {"add": "+", "sub": "-", "mul": "*", "div": "/", "matmul": "@"}
-    if op in infix:
-        return f"{out} = {a[0]} {infix[op]} {a[1]}"
-    if op == "max":
-        return f"{out} = np.maximum({a[0]}, {a[1]})"
+    if op in _NUMPY_FORMS:
+        return f"{out} = " + _NUMPY_FORMS[op].format(*a)
     if op == "clip":
         return f"{out} = np.clip({a[0]}, {at['lo']!r}, {at['hi']!r})"
-    if op == "elu":
-        return f"{out} = np.where({a[0]} > 0, {a[0]}, np.expm1(np.minimum({a[0]}, 0)))"
-    if op == "relu":
-        return f"{out} = np.maximum({a[0]}, 0)"
-    if op == "sigmoid":
-        return f"{out} = 1 / (1 + np.exp(-{a[0]}))"
-    if op in ("tanh", "sqrt"):
-        return f"{out} = np.{op}({a[0]})"
     if op == "slice":
         index = f"{at['start']}:{at['stop']}" + (f":{at['step']}" if at["step"] != 1 else "")
         return f"{out} = {a[0]}[..., {index}{', :' if at['axis'] == -2 else ''}]"

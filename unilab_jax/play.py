@@ -23,12 +23,14 @@ import json  # noqa: E402
 import logging  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
+import threading  # noqa: E402
 from collections.abc import Callable, Mapping  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from unilab_jax import saved_run  # noqa: E402
+from unilab_jax.runtime.ring import StopRequested  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -84,11 +86,13 @@ class SceneRenderer:
 
 
 def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_steps: int | None = None,
-                 render: tuple[int, int] | None = None) -> tuple[np.ndarray, dict[str, float]]:
+                 render: tuple[int, int] | None = None,
+                 stop: threading.Event | None = None) -> tuple[np.ndarray, dict[str, float]]:
     """Steps every env of ``task`` with the deterministic ``act(obs) -> action`` through its first episode (at
     most ``max_steps`` control steps), rendering env 0 before every step of its episode when ``render`` is
     ``(width, height)``. Returns (frames [T, H, W, 3] uint8, T = env 0's steps, empty without ``render``;
-    stats: ``return``/``return_std``/``episode_length`` over the envs, the walking metric on locomotion tasks)."""
+    stats: ``return``/``return_std``/``episode_length`` over the envs, the walking metric on locomotion tasks).
+    The trainer's evaluations run it too; ``stop`` set before the episodes end raises :class:`StopRequested`."""
     from tasks.walking import WalkingTracker, is_locomotion
 
     m = task.num_envs
@@ -104,6 +108,8 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
         alive = np.ones(m, dtype=bool)
         frames = []
         for _ in range(limit):
+            if stop is not None and stop.is_set():
+                raise StopRequested("evaluation stopped")
             if renderer is not None and alive[0]:
                 frames.append(renderer.frame())
             out = step(np.asarray(act(obs), np.float32))

@@ -191,37 +191,16 @@ class Trainer:
         """Deterministic policy, one full episode in each of ``eval_envs`` environments; raises
         :class:`StopRequested` when ``stop`` is set before it ends."""
         import tasks
-        from tasks.walking import WalkingTracker, is_locomotion
+        from unilab_jax.play import run_episodes
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
                           overrides=self.task_overrides)
-        try:
-            walking = WalkingTracker(task) if is_locomotion(task) else None
-            step = walking.step if walking is not None else task.step
-            obs, _ = task.reset()
-            m = self.run.eval_envs
-            ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
-            alive = np.ones(m, dtype=bool)
-            zeros = np.zeros((m, self.spec.action_dim), np.float32)
-            for _ in range(self.spec.episode_length):
-                if stop is not None and stop.is_set():
-                    raise StopRequested("evaluation stopped")
-                action, _ = self.algo.act(weights, obs, zeros, True)
-                out = step(np.asarray(action, np.float32))
-                ret += np.where(alive, out.reward, 0.0)
-                length += alive
-                alive &= ~(out.terminated | out.truncated)
-                obs = out.obs
-                if not alive.any():
-                    break
+        zeros = np.zeros((self.run.eval_envs, self.spec.action_dim), np.float32)
+        try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
+            _, stats = run_episodes(task, lambda obs: self.algo.act(weights, obs, zeros, True)[0], stop=stop)
         finally:
             task.close()
-        result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
-                  "eval/episode_length": float(length.mean())}
-        if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
-            metric = walking.result()
-            result.update({f"eval/{k}": metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
-        return result
+        return {f"eval/{k}": v for k, v in stats.items()}
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
