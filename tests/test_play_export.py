@@ -101,3 +101,19 @@ def test_video_every_must_not_be_negative():
     done = _run([os.path.join(ROOT, "experiments", "ppo_go1.py"), "--video_every=-5"])
     assert done.returncode == 2 and "--video_every must be >= 0" in done.stderr
 
+
+
+def test_rollout_frames_api(go1_run, tmp_path):
+    """The notebooks' API, in a fresh interpreter (the GL backend is chosen when mujoco is first imported)."""
+    code = ("import json, sys\n"
+            "from unilab_jax import play\n"
+            "frames, stats = play.rollout_frames(sys.argv[1], steps=5, width=64, height=48, "
+            "task_overrides={'episode_length': 50})\n"
+            "play.write_video(frames, sys.argv[2], stats['fps'])\n"
+            "print(json.dumps({'shape': list(frames.shape), 'dtype': str(frames.dtype), **stats}))\n")
+    done = _run(["-c", code, go1_run, str(tmp_path / "clip.mp4")])
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["shape"][1:] == [48, 64, 3] and out["dtype"] == "uint8" and 1 <= out["shape"][0] <= 5
+    assert out["shape"][0] == out["episode_length"] and out["fps"] == 50 and out["algo"] == "ppo"
+    assert os.path.getsize(tmp_path / "clip.mp4") > 0
