@@ -269,8 +269,8 @@ def main(argv: list[str] | None = None) -> int:
         frames, stats = run_policy(run, episodes=args.episodes, max_steps=args.steps,
                                    render=(args.width, args.height) if args.video else None,
                                    task_overrides=overrides, seed=args.seed)
-    except (FileNotFoundError, ConfigError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
+    except (FileNotFoundError, ConfigError, ValueError, NotImplementedError, RuntimeError) as e:
+        print(f"error: {e}", file=sys.stderr)  # RuntimeError: no GL backend; NotImplementedError: no scene
         return 2
     if args.video:
         write_video(frames, args.video, stats["fps"])
