@@ -43,7 +43,7 @@ class SceneRenderer:
         import mujoco
 
         model, _ = task.render_scene(env)
-        self._mujoco, self._task, self._env = mujoco, task, env
+        self._task, self._env = task, env
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
         model.vis.global_.offheight = max(model.vis.global_.offheight, height)
         try:
