@@ -91,7 +91,8 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     """Steps every env of ``task`` with the deterministic ``act(obs) -> action`` through its first episode (at
     most ``max_steps`` control steps), rendering env 0 before every step of its episode when ``render`` is
     ``(width, height)``. Returns (frames [T, H, W, 3] uint8, T = env 0's steps, empty without ``render``;
-    stats: ``return``/``return_std``/``episode_length`` over the envs, the walking metric on locomotion tasks).
+    stats: ``return``/``return_std``/``episode_length`` over the ``episodes`` (envs), ``success_rate`` on tasks
+    whose termination is success, the walking metric on locomotion tasks).
     The trainer's evaluations run it too; ``stop`` set before the episodes end raises :class:`StopRequested`."""
     from tasks.walking import WalkingTracker, is_locomotion
 
@@ -105,7 +106,7 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     try:
         obs, _ = task.reset()
         ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
-        alive = np.ones(m, dtype=bool)
+        alive, terminated = np.ones(m, dtype=bool), np.zeros(m, dtype=bool)
         frames = []
         for _ in range(limit):
             if stop is not None and stop.is_set():
@@ -115,6 +116,7 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
             out = step(np.asarray(act(obs), np.float32))
             ret += np.where(alive, out.reward, 0.0)
             length += alive
+            terminated |= alive & out.terminated
             alive &= ~(out.terminated | out.truncated)
             obs = out.obs
             if not alive.any():
@@ -122,7 +124,10 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     finally:
         if renderer is not None:
             renderer.close()
-    stats = {"return": float(ret.mean()), "return_std": float(ret.std()), "episode_length": float(length.mean())}
+    stats = {"return": float(ret.mean()), "return_std": float(ret.std()), "episode_length": float(length.mean()),
+             "episodes": float(m)}
+    if task.spec.success_on_termination:
+        stats["success_rate"] = float(terminated.mean())
     if walking is not None:
         metric = walking.result()
         stats.update({k: metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
@@ -142,8 +147,7 @@ def run_policy(run: saved_run.SavedRun, *, episodes: int = 1, max_steps: int | N
         frames, stats = run_episodes(task, run.act, max_steps=max_steps, render=render)
     finally:
         task.close()
-    return frames, {"algo": run.algo, "task": run.task, "checkpoint": run.step, "episodes": episodes, **stats,
-                    "fps": fps_of(run.spec)}
+    return frames, {"algo": run.algo, "task": run.task, "checkpoint": run.step, **stats, "fps": fps_of(run.spec)}
 
 
 def fps_of(spec: Any) -> int:

@@ -92,14 +92,17 @@ def _donated(tree: Any) -> bool:
 class Trainer:
     _STOP_GRACE_S = 2.0  # after a stop, how long the loop still waits for the update in flight
     def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
-                 start_time: float | None = None):
+                 start_time: float | None = None, eval_overrides: dict[str, Any] | None = None):
         """``start_time``: wall clock that ``time/wall_s`` and ``eval/wall_s`` count from (the process
-        start when launched from the CLI, so compilation and worker start-up are included)."""
+        start when launched from the CLI, so compilation and worker start-up are included).
+        ``eval_overrides``: task overrides added for evaluations only (e.g. robot tasks evaluating on
+        the robots that answer, ``min_envs``)."""
         import tasks
 
         self.t0 = time.time() if start_time is None else start_time
 
         self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, task_overrides
+        self.eval_overrides = {**task_overrides, **(eval_overrides or {})}
         probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
         self.spec = probe.spec
         probe.close()
@@ -188,14 +191,15 @@ class Trainer:
 
     # -- evaluation ------------------------------------------------------------------------------
     def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
-        """Deterministic policy, one full episode in each of ``eval_envs`` environments; raises
-        :class:`StopRequested` when ``stop`` is set before it ends."""
+        """Deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the
+        task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
+        before it ends."""
         import tasks
         from unilab_jax.play import run_episodes
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
-                          overrides=self.task_overrides)
-        zeros = np.zeros((self.run.eval_envs, self.spec.action_dim), np.float32)
+                          overrides=self.eval_overrides)
+        zeros = np.zeros((task.num_envs, self.spec.action_dim), np.float32)
         try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
             _, stats = run_episodes(task, lambda obs: self.algo.act(weights, obs, zeros, True)[0], stop=stop)
         finally:
@@ -265,6 +269,8 @@ class Trainer:
                                 "perf/publish_s": time.perf_counter() - t_publish})
                 scalars.update(stats["scalars"])
                 scalars.update(source.pool_scalars())
+                if self.spec.success_on_termination and "episode/terminated_fraction" in scalars:
+                    scalars["episode/success_rate"] = scalars["episode/terminated_fraction"]
                 scalars.update({"perf/env_steps_per_s": (counters["env_steps"] - steps_last) / max(now - t_last, 1e-9),
                                 "perf/learner_updates_per_s": 1.0 / max(now - t_last, 1e-9),
                                 "time/wall_s": now - t_start})
@@ -801,6 +807,7 @@ class _ReplaySource:
         if st["recent_episode_returns"].size:
             out["episode/return"] = st["episode_return_mean"]
             out["episode/length"] = st["episode_length_mean"]
+            out["episode/terminated_fraction"] = st["episode_terminated_fraction"]
         out.update({f"reward/{k}": v for k, v in st["reward_terms"].items()})
         return out
 
