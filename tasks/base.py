@@ -41,6 +41,9 @@ class TaskSpec:
     ctrl_dt: float
     reward_terms: tuple[str, ...]
     privileged_dim: int = 0  # extrinsics vector for teacher/student methods (0: none)
+    # True where an episode terminates only by succeeding (the robot tasks): episode and evaluation logs
+    # then report the terminated fraction as ``success_rate``.
+    success_on_termination: bool = False
 
 
 class StepOut(NamedTuple):
