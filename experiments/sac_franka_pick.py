@@ -6,7 +6,7 @@
 ``--robots``: a comma list or a ``.toml`` inventory (``unilab_jax.robots.inventory``): ``sim:NAME`` robots are
 started here as local robot servers (``--speed`` times real time, dense reward, no cameras; stopped at exit),
 ``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and health first.
-Assignment: one robot per rollout worker (``--num_workers`` defaults to the number of robots,
+Assignment: one robot per rollout worker (``--num_workers`` defaults to, and ``auto`` is, the number of robots,
 ``--envs_per_worker`` to 1); each worker claims the first free robot of the inventory. A robot lost
 mid-run stops its worker until the robot (or another free one) answers again; the other workers go on,
 and the interrupted step writes no transition. The policy sees the robot's proprioception, its kind
@@ -45,7 +45,7 @@ def validate():
         raise FlagError(f"--speed must be positive and finite, got {FLAGS.speed}")
     n = len(entries)
     for name, value in (("num_workers", n), ("envs_per_worker", 1), ("eval_envs", n)):
-        if not FLAGS[name].present:
+        if not FLAGS[name].present or FLAGS[name].value == "auto":  # machine-sized here: one worker per robot
             setattr(FLAGS, name, value)
     if FLAGS.num_workers * FLAGS.envs_per_worker > n:
         raise FlagError(f"--num_workers={FLAGS.num_workers} x --envs_per_worker={FLAGS.envs_per_worker} "

@@ -59,6 +59,7 @@ class RunConfig:
     eval_every: int = 0  # env steps between evaluations (0: only at the end)
     eval_envs: int = 16
     checkpoint_every: int = 0  # env steps between checkpoints (0: at evaluations and at the end)
+    video_every: int = 0  # env steps between clips of an evaluation episode (unilab_jax.play.ClipRecorder; 0: none)
     serial: bool = False  # run the workers in-process (debugging, deterministic tests)
     # Persistent replay (off-policy algorithms; unilab_jax/runtime/replay_store.py): every transition is
     # also written to a crash-safe store in replay_dir, which --resume reopens.
@@ -197,40 +198,18 @@ class Trainer:
         task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
         before it ends."""
         import tasks
-        from tasks.walking import WalkingTracker, is_locomotion
+        from unilab_jax.play import run_episodes
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
                           overrides=self.eval_overrides)
-        try:
-            walking = WalkingTracker(task) if is_locomotion(task) else None
-            step = walking.step if walking is not None else task.step
-            obs, _ = task.reset()
-            m = task.num_envs
-            ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
-            alive, terminated = np.ones(m, dtype=bool), np.zeros(m, dtype=bool)
-            zeros = np.zeros((m, self.spec.action_dim), np.float32)
-            for _ in range(self.spec.episode_length):
-                if stop is not None and stop.is_set():
-                    raise StopRequested("evaluation stopped")
-                action, _ = self.algo.act(weights, obs, zeros, True)
-                out = step(np.asarray(action, np.float32))
-                ret += np.where(alive, out.reward, 0.0)
-                length += alive
-                terminated |= alive & out.terminated
-                alive &= ~(out.terminated | out.truncated)
-                obs = out.obs
-                if not alive.any():
-                    break
+        zeros = np.zeros((task.num_envs, self.spec.action_dim), np.float32)
+        try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
+            _, stats = run_episodes(task, lambda obs: self.algo.act(weights, obs, zeros, True)[0], stop=stop)
         finally:
             task.close()
-        result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
-                  "eval/episode_length": float(length.mean()), "eval/episodes": float(m)}
-        if self.spec.success_on_termination:
-            result["eval/success_rate"] = float(terminated.mean())
-        if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
-            metric = walking.result()
-            result.update({f"eval/{k}": metric[k] for k in WALKING.KEYS})
-            result["eval/walking"] = float(WALKING.met(metric))  # 1: meets the walking criterion
+        result = {f"eval/{k}": v for k, v in stats.items()}
+        if "tracking_error" in stats:  # locomotion: the walking criterion on the same episodes
+            result["eval/walking"] = float(WALKING.met(stats))  # 1: it walks
         return result
 
     # -- the loop ----------------------------------------------------------------------------------
@@ -243,6 +222,11 @@ class Trainer:
         learner = LearnerThread(run.platform)
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
+        clips = None
+        if run.video_every:
+            from unilab_jax.play import ClipRecorder
+
+            clips = ClipRecorder(self, run.video_every, counters["env_steps"])
         replay = self.algo.BUFFER == "replay"
         hold_window = self._hold_window(cfg) if replay else None
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
@@ -307,6 +291,8 @@ class Trainer:
                     evaluated_at = counters["env_steps"]
                     next_eval += run.eval_every
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+                if clips is not None and clips.due(counters["env_steps"]):
+                    clips.submit(learner.call(stop, self._numpy_weights, state), counters["env_steps"])
                 if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                     next_ckpt += run.checkpoint_every
@@ -331,6 +317,8 @@ class Trainer:
         if not interrupted and evaluated_at != counters["env_steps"]:
             evaluator.submit(self._numpy_weights(state), dict(counters), time.time() - t_start)
         last_eval = evaluator.close(cancel=interrupted)
+        if clips is not None:
+            clips.close(cancel=interrupted)
         self.logger.close()
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
                    "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
