@@ -195,8 +195,10 @@ class Trainer:
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
                           overrides=self.task_overrides)
         try:
-            walking = WalkingTracker(task) if is_locomotion(task) else None
-            step = walking.step if walking is not None else task.step
+            # A task's own metric (``eval_tracker()``) or, for locomotion, the walking metric.
+            tracker = (task.eval_tracker() if hasattr(task, "eval_tracker")
+                       else WalkingTracker(task) if is_locomotion(task) else None)
+            step = tracker.step if tracker is not None else task.step
             obs, _ = task.reset()
             m = self.run.eval_envs
             ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
@@ -217,9 +219,9 @@ class Trainer:
             task.close()
         result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
                   "eval/episode_length": float(length.mean())}
-        if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
-            metric = walking.result()
-            result.update({f"eval/{k}": metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
+        if tracker is not None:  # measured over the same episodes, independent of reward scaling
+            metric = tracker.result()
+            result.update({f"eval/{k}": metric[k] for k in tracker.LOGGED})
         return result
 
     # -- the loop ----------------------------------------------------------------------------------
