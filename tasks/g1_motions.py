@@ -25,8 +25,10 @@ Inverse kinematics
 
 Clips (all start and end in the standing pose, so the task can chain them)
     ``squat`` (3 s): down to a pelvis height of 0.50 m with the torso leaning forward and arms reaching out.
-    ``side_step`` (3.2 s): weight onto the right foot, left foot steps 0.1 m left, weight across, right foot
-    follows. ``turn`` (5.1 s): two stepping turns of 45 degrees to the left. ``hop`` (2.4 s): crouch, push
+    ``side_step`` (2.8 s): weight onto the right foot, left foot steps 0.1 m left, weight across, right foot
+    follows. ``turn`` (4.3 s): two stepping turns of 45 degrees to the left. The ankle's roll range keeps the
+    weight shift short of the stance foot (the centre of mass stays ~5 cm inside it), so the steps are quick
+    (0.3 s swings, a controlled fall towards the landing foot as in a human side step). ``hop`` (2.4 s): crouch, push
     off to 0.98 m/s at a pelvis height of 0.75 m, 0.2 s of ballistic flight (4.9 cm apex), land, absorb, stand.
     No flip: a flip's flight must carry the angular momentum the take-off gave it (the rotation is set by the
     push-off, and the centre of mass follows a parabola); keyframes + IK prescribe poses, not momentum, so a
@@ -55,6 +57,8 @@ from collections.abc import Mapping, Sequence
 
 import mujoco
 import numpy as np
+
+from tasks import g1_walk, walking
 
 FPS = 50.0
 GRAVITY = 9.81
@@ -106,12 +110,12 @@ def _side_step(dy: float = 0.1, lift: float = 0.04, shift: float = 0.04) -> list
     return [
         Keyframe(0.0, STAND), Keyframe(0.3),
         Keyframe(0.9, {"pelvis": over_right}),
-        Keyframe(1.14, {"lfoot": (FOOT_X, FOOT_Y + dy / 2, lift)}),
-        Keyframe(1.4, {"lfoot": (FOOT_X, FOOT_Y + dy, SOLE_Z)}),
-        Keyframe(2.0, {"pelvis": over_left}),
-        Keyframe(2.24, {"rfoot": (FOOT_X, -FOOT_Y + dy / 2, lift)}),
-        Keyframe(2.5, {"rfoot": (FOOT_X, -FOOT_Y + dy, SOLE_Z)}),
-        Keyframe(3.0, {"pelvis": (0.0, dy, STAND_Z)}), Keyframe(3.2),
+        Keyframe(1.04, {"lfoot": (FOOT_X, FOOT_Y + dy / 2, lift)}),
+        Keyframe(1.2, {"lfoot": (FOOT_X, FOOT_Y + dy, SOLE_Z)}),
+        Keyframe(1.8, {"pelvis": over_left}),
+        Keyframe(1.94, {"rfoot": (FOOT_X, -FOOT_Y + dy / 2, lift)}),
+        Keyframe(2.1, {"rfoot": (FOOT_X, -FOOT_Y + dy, SOLE_Z)}),
+        Keyframe(2.6, {"pelvis": (0.0, dy, STAND_Z)}), Keyframe(2.8),
     ]
 
 
@@ -129,13 +133,13 @@ def _turn(step: float = math.pi / 4, steps: int = 2) -> list[Keyframe]:
         mid = {s: ((foot[s][0][0] + foot[s][1][0]) / 2, (foot[s][0][1] + foot[s][1][1]) / 2) for s in "lr"}
         keys += [
             Keyframe(t + 0.5, {"pelvis": (*over["r"], 0.74)}),
-            Keyframe(t + 0.76, {"lfoot": (*mid["l"], 0.06), "lfoot_yaw": (a0 + a1) / 2}),
-            Keyframe(t + 1.0, {"lfoot": (*foot["l"][1], SOLE_Z), "lfoot_yaw": a1, "yaw": (a0 + a1) / 2}),
-            Keyframe(t + 1.5, {"pelvis": (*over["l"], 0.74)}),
-            Keyframe(t + 1.76, {"rfoot": (*mid["r"], 0.06), "rfoot_yaw": (a0 + a1) / 2}),
-            Keyframe(t + 2.0, {"rfoot": (*foot["r"][1], SOLE_Z), "rfoot_yaw": a1, "yaw": a1}),
+            Keyframe(t + 0.64, {"lfoot": (*mid["l"], 0.05), "lfoot_yaw": (a0 + a1) / 2}),
+            Keyframe(t + 0.8, {"lfoot": (*foot["l"][1], SOLE_Z), "lfoot_yaw": a1, "yaw": (a0 + a1) / 2}),
+            Keyframe(t + 1.3, {"pelvis": (*over["l"], 0.74)}),
+            Keyframe(t + 1.44, {"rfoot": (*mid["r"], 0.05), "rfoot_yaw": (a0 + a1) / 2}),
+            Keyframe(t + 1.6, {"rfoot": (*foot["r"][1], SOLE_Z), "rfoot_yaw": a1, "yaw": a1}),
         ]
-        t += 2.0
+        t += 1.6
     return keys + [Keyframe(t + 0.5, {"pelvis": (0.0, 0.0, STAND_Z)}), Keyframe(t + 0.8)]
 
 
@@ -301,13 +305,22 @@ class IKSolver:
 # --------------------------------------------------------------------------------------------------
 # Clips
 # --------------------------------------------------------------------------------------------------
-def g1_model() -> tuple[mujoco.MjModel, np.ndarray]:
-    """The tracking task's G1 model and its standing qpos (pelvis at the height where the feet touch)."""
-    from tasks import g1_track
+def standing_qpos(model: mujoco.MjModel) -> np.ndarray:
+    """``g1_walk``'s default pose with the pelvis at the height where the feet touch the floor."""
+    qpos = model.qpos0.copy()
+    for name, angle in g1_walk.DEFAULT_POSE.items():
+        qpos[model.jnt_qposadr[model.joint(name).id]] = angle
+    bodies = {model.body(b).id for b in g1_walk.FOOT_BODIES}
+    feet = [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies]
+    qpos[2] = walking.standing_height(model, qpos, feet)
+    return qpos
 
-    config = g1_track.default_config()
-    model = g1_track.build_spec(config).compile()
-    return model, g1_track.standing_qpos(model)
+
+def g1_model() -> tuple[mujoco.MjModel, np.ndarray]:
+    """The G1 model of the G1 tasks (``g1_walk_flat``'s MjSpec edits; the kinematics are the MJCF's) and its
+    standing qpos."""
+    model = g1_walk.build_spec(g1_walk.default_config()).compile()
+    return model, standing_qpos(model)
 
 
 def make_clip(model: mujoco.MjModel, stand_qpos: np.ndarray, keyframes: Sequence[Keyframe],
@@ -335,7 +348,7 @@ def make_clip(model: mujoco.MjModel, stand_qpos: np.ndarray, keyframes: Sequence
         mujoco.mj_forward(model, d)
         pos[f], quat[f] = d.xpos[bodies], d.xquat[bodies]
         for i, b in enumerate(bodies):
-            mujoco.mj_objectVelocity(model, d, mujoco.mjtObj.mjOBJ_BODY, b, vel6, 0)
+            mujoco.mj_objectVelocity(model, d, mujoco.mjtObj.mjOBJ_XBODY, b, vel6, 0)
             ang[f, i], lin[f, i] = vel6[:3], vel6[3:]
     joints = [model.joint(j).name for j in range(1, model.njnt)]
     f32, f16 = np.float32, np.float16

@@ -110,20 +110,6 @@ def build_spec(config: G1TrackConfig) -> mujoco.MjSpec:
     return spec
 
 
-def foot_geoms(model: mujoco.MjModel) -> list[int]:
-    bodies = {model.body(b).id for b in g1_walk.FOOT_BODIES}
-    return [g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies]
-
-
-def standing_qpos(model: mujoco.MjModel) -> np.ndarray:
-    """``g1_walk``'s default pose with the pelvis at the height where the feet touch the floor."""
-    qpos = model.qpos0.copy()
-    for name, angle in g1_walk.DEFAULT_POSE.items():
-        qpos[model.jnt_qposadr[model.joint(name).id]] = angle
-    qpos[2] = walking.standing_height(model, qpos, foot_geoms(model))
-    return qpos
-
-
 # --------------------------------------------------------------------------------------------------
 # Task math on the shim: [..., 4] quaternions (w, x, y, z), [..., 3] vectors; M envs, B bodies.
 # --------------------------------------------------------------------------------------------------
@@ -421,7 +407,7 @@ class G1Track(g1_walk.G1WalkFlat):
         return self._observe(self._state())
 
     def _after_physics(self, a: np.ndarray, unstable: np.ndarray) -> base.StepOut:
-        c, cl, M = self.config, self.clips, self.num_envs
+        c, cl = self.config, self.clips
         self.steps += 1
         self.frame += 1
         s = self._state()
