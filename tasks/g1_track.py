@@ -127,12 +127,19 @@ def quat_conj(q):
     return xp.concat([q[..., :1], -q[..., 1:]], axis=-1)
 
 
+def _cross(a, b):
+    """Cross product over the last axis, written out (numpy's ``cross`` moves axes around: 1.5x slower here)."""
+    xp = shim.namespace(a, b)
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    return xp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+
+
 def quat_rotate(q, v):
     """R(q) v."""
-    xp = shim.namespace(q, v)
     w, u = q[..., :1], q[..., 1:]
-    t = 2.0 * xp.linalg.cross(u, v)
-    return v + w * t + xp.linalg.cross(u, t)
+    t = 2.0 * _cross(u, v)
+    return v + w * t + _cross(u, t)
 
 
 def quat_angle(a, b):
