@@ -7,7 +7,7 @@ domain randomisation (floor friction, link masses, torso COM) and the shared ``W
 
 * Reference: the clips of ``clip_dir`` (default: the committed ``tasks/motions/*.npz``), 50 fps = the control
   rate. Each env follows one clip at a time; when a clip ends the env goes on with a random clip from its
-  first frame, re-anchored (pelvis xy and heading) onto where the previous clip ended (every clip starts and
+  first frame, placed at the robot's pelvis xy and heading at that moment (every clip starts and
   ends in the standing pose), so episodes are ``episode_length`` steps whatever the clips' lengths.
 * Actions: all 29 joints (``policy_joints="all"``); servo target = the reference's joint angles at the next
   frame + ``action_scale * clip(action, -1, 1)`` (a residual on the reference: a zero action replays the clip
@@ -438,12 +438,13 @@ class G1Track(g1_walk.G1WalkFlat):
         self.failures *= c.failure_decay
         failed = np.flatnonzero(done & ~unstable)
         np.add.at(self.failures, self.bin_offset[self.clip[failed]] + self.frame[failed] // self.bin_frames, 1.0)
-        # Clips that reached their last frame go on with a random clip from where they ended.
+        # Clips that reached their last frame go on with a random clip placed where the robot stands (its pelvis
+        # xy and heading): drift accumulated over one clip is not carried into the next.
         self.clip_finished = (self.frame >= cl.length[self.clip] - 1) & ~done
         fin = np.flatnonzero(self.clip_finished)
         self.clips_completed += fin.size
         if fin.size:
-            xy, yaw = self._root_in_world(cl.index(self.clip[fin], self.frame[fin]), fin)
+            xy, yaw = self.sim.qpos[fin, :2], heading(self.sim.qpos[fin, 3:7])
             self._start_clip(fin, self._rng.integers(0, len(cl.length), size=fin.size), np.zeros(fin.size, np.int64),
                              xy, yaw)
             s = self._state()
