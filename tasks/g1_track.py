@@ -241,6 +241,12 @@ def rotation_6d(q):
 # --------------------------------------------------------------------------------------------------
 # The numpy task
 # --------------------------------------------------------------------------------------------------
+def _rotate_xy(yaw: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """[n, 2] ``xy`` rotated by ``yaw`` [n] about the vertical."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], axis=1)
+
+
 class Clips:
     """The clips of a folder concatenated: frame g of the whole set is frame g - start[c] of clip c."""
 
@@ -283,7 +289,6 @@ class G1Track(g1_walk.G1WalkFlat):
         joints = tuple(m.joint(j).name for j in range(1, m.njnt))
         self.clips = Clips(g1_motions.clip_paths(c.clip_dir), joints, c.ctrl_dt)
         cl = self.clips
-        self.body_ids = [m.body(b).id for b in cl.body_names]
         self._ee = np.array([cl.body_names.index(b) for b in END_EFFECTORS])
         self._track_adr = {k: np.array([self._sensor[f"track_{b}_{k}"][0] for b in cl.body_names])
                            for k in ("pos", "quat", "linvel", "angvel")}
@@ -309,7 +314,6 @@ class G1Track(g1_walk.G1WalkFlat):
         self.clip_finished = np.zeros(M, dtype=bool)  # the env reached its clip's last frame this step
         self.body_pos_error = np.zeros(M)  # mean world-frame distance to the reference bodies this step
         self.play_from_start = False  # evaluation: env i plays clip i mod n from frame 0, no start noise
-        self.clips_completed = 0
         obs, cobs = self._observe(self._state())
         self.spec = dataclasses.replace(self.spec, obs_dim=obs.shape[1], critic_obs_dim=cobs.shape[1])
 
@@ -328,19 +332,15 @@ class G1Track(g1_walk.G1WalkFlat):
 
     def _root_in_world(self, g: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(xy [n, 2], heading [n]) of the reference pelvis at frames ``g`` placed for envs ``env``."""
-        cl, yaw = self.clips, self.origin_yaw[env]
-        c, s = np.cos(yaw), np.sin(yaw)
-        x, y = cl.qpos[g, 0], cl.qpos[g, 1]
-        xy = self.origin_xy[env] + np.stack([c * x - s * y, s * x + c * y], axis=1)
-        return xy, yaw + heading(cl.qpos[g, 3:7])
+        yaw = self.origin_yaw[env]
+        return self.origin_xy[env] + _rotate_xy(yaw, self.clips.qpos[g, :2]), yaw + heading(self.clips.qpos[g, 3:7])
 
     def _start_clip(self, env: np.ndarray, clip: np.ndarray, frame: np.ndarray, xy: np.ndarray, yaw: np.ndarray):
         """Envs ``env`` follow ``clip`` from ``frame``, placed so that frame's pelvis is at ``xy`` / ``yaw``."""
         g = self.clips.index(clip, frame)
         self.clip[env], self.frame[env] = clip, frame
         self.origin_yaw[env] = yaw - heading(self.clips.qpos[g, 3:7])
-        self.origin_xy[env] = 0.0
-        self.origin_xy[env] = xy - self._root_in_world(g, env)[0]  # the root's xy rotated by the new heading
+        self.origin_xy[env] = xy - _rotate_xy(self.origin_yaw[env], self.clips.qpos[g, :2])
 
     # ---- hooks ----------------------------------------------------------------------------------
     def _state(self) -> dict:
@@ -442,7 +442,6 @@ class G1Track(g1_walk.G1WalkFlat):
         # xy and heading): drift accumulated over one clip is not carried into the next.
         self.clip_finished = (self.frame >= cl.length[self.clip] - 1) & ~done
         fin = np.flatnonzero(self.clip_finished)
-        self.clips_completed += fin.size
         if fin.size:
             xy, yaw = self.sim.qpos[fin, :2], heading(self.sim.qpos[fin, 3:7])
             self._start_clip(fin, self._rng.integers(0, len(cl.length), size=fin.size), np.zeros(fin.size, np.int64),

@@ -244,6 +244,15 @@ def test_reference_drives_the_servos_and_clips_chain():
     np.testing.assert_allclose(xy[0], robot[:2], atol=1e-9)
     np.testing.assert_allclose(math.remainder(yaw[0] - g1_track.heading(robot[3:7]), 2 * math.pi), 0.0, atol=1e-9)
     assert np.abs(robot[:2] - cl.qpos[last, :2]).max() < 0.01  # one servoed frame from the reference's end
+    # Placing a frame whose pelvis is off the clip's origin (the side step's end: 0.1 m left) at a turned pose.
+    side = cl.names.index("side_step")
+    g_end = cl.index(np.array([side]), np.array([cl.length[side] - 1]))
+    assert abs(cl.qpos[g_end[0], 1] - 0.1) < 0.01
+    task._start_clip(np.array([1]), np.array([side]), np.array([cl.length[side] - 1]), np.array([[2.0, -1.0]]),
+                     np.array([0.5]))
+    xy, yaw = task._root_in_world(g_end, np.array([1]))
+    np.testing.assert_allclose(xy, [[2.0, -1.0]], atol=1e-12)
+    np.testing.assert_allclose(yaw, [0.5], atol=1e-12)
     result = tracker.result()
     assert result["clip_completion"] == pytest.approx(1 / 3) and 0 < result["body_pos_error"] < 0.1
     task.close()
