@@ -10,8 +10,10 @@ domain randomisation (floor friction, link masses, torso COM) and the shared ``W
   first frame, placed at the robot's pelvis xy and heading at that moment (every clip starts and
   ends in the standing pose), so episodes are ``episode_length`` steps whatever the clips' lengths.
 * Actions: all 29 joints (``policy_joints="all"``); servo target = the reference's joint angles at the next
-  frame + ``action_scale * clip(action, -1, 1)`` (a residual on the reference: a zero action replays the clip
-  through the servos).
+  frame + ``scale_j * clip(action, -1, 1)`` (a residual on the reference: a zero action replays the clip
+  through the servos), ``scale_j`` = 0.5 x the joint's torque limit / its kp (0.125 rad for the wrists and
+  waist roll/pitch up to 0.62 for the ankles): light joints get small residuals, so exploration noise does
+  not shake the wrists.
 * Tracked bodies (``g1_motions.TRACKED_BODIES``, 14, as BeyondMimic tracks): world pose and velocity from
   frame sensors. The anchor body (``torso_link``) is tracked in the world; the other bodies relative to it:
   each reference body is moved rigidly, by the heading difference about the vertical and the anchor's
@@ -70,6 +72,10 @@ class G1TrackConfig(g1_walk.G1Config):
 
     episode_length: int = 500
     policy_joints: str = "all"
+    # Residual scale per joint = action_torque_fraction x torque limit / kp (BeyondMimic's rule, there with 0.25):
+    # hips 0.44, knees 0.46, ankles 0.62, waist yaw 0.22, waist roll/pitch 0.125, arms 0.31, wrist pitch/yaw
+    # 0.125 rad; 0: ``action_scale`` for every joint.
+    action_torque_fraction: float = 0.5
     clip_dir: str = g1_motions.CLIP_DIR
     reference_frames: tuple[int, ...] = (1, 4)  # frames ahead whose joint angles the actor sees
     sigma_anchor_pos: float = 0.09
@@ -297,6 +303,9 @@ class G1Track(g1_walk.G1WalkFlat):
         mid, half = (lo + hi) / 2, (hi - lo) / 2 * c.soft_limit_fraction
         self.soft_lower, self.soft_upper = mid - half, mid + half
         self.sigmas = {k: getattr(c, f"sigma_{k}") for k in REWARD_TERMS[:6]}
+        act = self.policy_idx
+        self.action_scales = (c.action_torque_fraction * m.actuator_forcerange[act, 1] / m.actuator_gainprm[act, 0]
+                              if c.action_torque_fraction > 0 else np.full(act.size, c.action_scale))
         # Clip bins for the start sampling.
         bin_frames = max(1, round(c.bin_seconds / c.ctrl_dt))
         nbins = -(-cl.length // bin_frames)
@@ -380,7 +389,7 @@ class G1Track(g1_walk.G1WalkFlat):
 
     def _ctrl(self, action: np.ndarray) -> np.ndarray:
         ctrl = self.clips.qpos[self.clips.index(self.clip, self.frame + 1)][:, self._act_qadr]
-        ctrl[:, self.policy_idx] += self.config.action_scale * action
+        ctrl[:, self.policy_idx] += self.action_scales * action
         return ctrl
 
     def start_probabilities(self) -> np.ndarray:

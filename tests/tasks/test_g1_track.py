@@ -231,7 +231,10 @@ def test_reference_drives_the_servos_and_clips_chain():
     assert obs.shape[1] == 6 + 3 * n + 2 * n + 9 + 1 and cobs.shape[1] == obs.shape[1] + 6 + 2 * 3 * 14
     # A zero action servos to the reference's next frame.
     np.testing.assert_allclose(task._ctrl(np.zeros((3, n))), cl.qpos[g1, 7:])
-    np.testing.assert_allclose(task._ctrl(np.ones((3, n))), cl.qpos[g1, 7:] + 0.5)
+    # Residual scale 0.5 x torque limit / kp: left knee 0.5 x 139 / 150, wrist yaw 0.5 x 5 / 20.
+    joints = [task.policy_joint_names.index(j) for j in ("left_knee_joint", "left_wrist_yaw_joint")]
+    np.testing.assert_allclose(task.action_scales[joints], [0.5 * 139 / 150, 0.5 * 5 / 20], rtol=1e-6)
+    np.testing.assert_allclose(task._ctrl(np.ones((3, n))), cl.qpos[g1, 7:] + task.action_scales)
     # Put env 0 one frame before its clip's end (on the reference state there) and step: it finishes the clip
     # and goes on with a clip from frame 0, placed at the robot's pelvis (xy and heading).
     last = cl.start[0] + cl.length[0] - 1
