@@ -13,10 +13,12 @@ termination) and ``eval/body_pos_error`` (m).
 """
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "horizon": 24,
           "learning_rate": 1e-3, "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.005, "gamma": 0.99,
           "lam": 0.95, "desired_kl": 0.01, "init_log_std": -1.0}
 
 if __name__ == "__main__":
-    run_experiment(algo="ppo", task="g1_track", recipe=RECIPE, default_total_steps=100_000_000)
+    run_experiment(algo="ppo", task="g1_track", recipe=RECIPE, default_total_steps=100_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 15, 128))
