@@ -162,6 +162,7 @@ _REGISTRY: dict[str, _Entry] = {
     "go1_joystick_flat": _builtin("tasks.go1_joystick"),
     "go2_joystick_flat": _builtin("tasks.go2_joystick"),
     "g1_walk_flat": _builtin("tasks.g1_walk"),
+    "g1_track": _builtin("tasks.g1_track"),
     "robot_pick_place": _Entry(_ByName("tasks.robot:make", "pick_place"), _ByName("tasks.robot:default_config")),
     "robot_peg_insertion": _Entry(_ByName("tasks.robot:make", "peg_insertion"),
                                   _ByName("tasks.robot:default_config")),

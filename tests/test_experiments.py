@@ -42,6 +42,18 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     assert resumed and min(s for s in train_steps if s > steps[-1]) == steps[-1] + 24 * 2 * 32
 
 
+def test_ppo_g1_track_runs_and_reports_the_tracking_metric(tmp_path):
+    # Issue criterion: ppo_g1_track.py exits 0 on a tiny budget; its evaluation plays the clips from their start.
+    logdir = str(tmp_path / "track")
+    # 2 x 32 envs (auto sizing gives 1 x 1920 here: 46k steps before the first update, 37 s, 1.5 GB; exits 0 too).
+    out = _run("ppo_g1_track.py", "--total_steps=5000", "--num_workers=2", "--envs_per_worker=32", "--eval_envs=4",
+               f"--logdir={logdir}")
+    assert out.returncode == 0, out.stderr[-3000:]
+    summary = json.load(open(os.path.join(logdir, "summary.json")))
+    assert summary["env_steps"] >= 5000 and 0.0 <= summary["eval/clip_completion"] <= 1.0
+    assert 0.0 < summary["eval/body_pos_error"] < 1.0  # metres, mean over the tracked bodies
+
+
 @pytest.mark.parametrize("flag,message", [
     ("--num_workers=0", "--num_workers must be at least 1"),
     ("--platform=tpu", "--platform='tpu'"),

@@ -12,7 +12,8 @@ import subprocess
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-NAMES = ["cartpole_balance", "go1_joystick_flat", "go2_joystick_flat", "g1_walk_flat", "go1_joystick_flat_hist"]
+NAMES = ["cartpole_balance", "go1_joystick_flat", "go2_joystick_flat", "g1_walk_flat", "go1_joystick_flat_hist",
+         "g1_track"]
 
 _SCRIPT = """
 import json, sys

@@ -104,7 +104,8 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     most ``max_steps`` control steps), rendering env 0 before every step of its episode when ``render`` is
     ``(width, height)``. Returns (frames [T, H, W, 3] uint8, T = env 0's steps, empty without ``render``;
     stats: ``return``/``return_std``/``episode_length`` over the ``episodes`` (envs), ``success_rate`` on tasks
-    whose termination is success, the walking metric on locomotion tasks).
+    whose termination is success, the ``LOGGED`` entries of the task's own metric where it has one
+    (``task.eval_tracker()``, e.g. ``g1_track``'s clip completion), else the walking metric on locomotion tasks).
     The trainer's evaluations run it too; ``stop`` set before the episodes end raises :class:`StopRequested`."""
     from tasks.walking import WalkingTracker, is_locomotion
 
@@ -112,8 +113,9 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     limit = task.spec.episode_length if max_steps is None else min(int(max_steps), task.spec.episode_length)
     if limit < 1:
         raise ValueError(f"steps must be positive, got {max_steps}")
-    walking = WalkingTracker(task) if is_locomotion(task) else None
-    step = walking.step if walking is not None else task.step
+    tracker = (task.eval_tracker() if hasattr(task, "eval_tracker")
+               else WalkingTracker(task) if is_locomotion(task) else None)
+    step = tracker.step if tracker is not None else task.step
     renderer = SceneRenderer(task, *render) if render is not None else None
     try:
         obs, _ = task.reset()
@@ -140,9 +142,9 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
              "episodes": float(m)}
     if task.spec.success_on_termination:
         stats["success_rate"] = float(terminated.mean())
-    if walking is not None:
-        metric = walking.result()
-        stats.update({k: metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
+    if tracker is not None:
+        metric = tracker.result()
+        stats.update({k: metric[k] for k in tracker.LOGGED})
     shape = (0, render[1], render[0], 3) if render is not None else (0, 0, 0, 3)
     return (np.stack(frames) if frames else np.zeros(shape, np.uint8)), stats
 
