@@ -111,3 +111,25 @@ def make(learner: Any, devices: int | None) -> Any:
     if len(chosen) == 1:
         return learner
     return DataParallel(learner, chosen, DONATE_STATE)
+
+
+def check_run(devices: str, platform: str, config: Any, buffer: str, num_workers: int, envs_per_worker: int) -> int:
+    """Validates ``--devices`` for a run (before any worker starts); returns the number of devices.
+
+    The batch axis that is split: a replay minibatch's ``batch_size``; a trajectory batch's environments
+    (``num_workers * envs_per_worker``, every slot of a lock-step or async collect)."""
+    n = parse_devices(devices)
+    if platform != "jax" and devices != "1":
+        raise ValueError(f"--devices={devices}: data-parallel learners are JAX's (--platform=jax)")
+    n = len(local_devices(n))
+    if buffer == "replay":
+        check_batch(n, int(config.batch_size), "batch_size")
+    else:
+        check_batch(n, num_workers * envs_per_worker, "num_workers * envs_per_worker")
+    return n
+
+
+def for_run(learner: Any, run: Any, config: Any, buffer: str) -> DataParallel | None:
+    """The :class:`DataParallel` learner of ``run.devices`` (checked), None for one device."""
+    n = check_run(run.devices, run.platform, config, buffer, run.num_workers, run.envs_per_worker)
+    return make(learner, n) if n > 1 else None

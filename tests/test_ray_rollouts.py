@@ -1,0 +1,137 @@
+"""Rollouts on several hosts through Ray (``unilab_jax/runtime/ray_pool.py``): a local two-node cluster trains
+cart-pole through a remote worker pool, survives losing the second node mid-run, and every Ray process is gone
+after; nothing imports Ray without ``--ray_address``.
+
+The cluster (``ray.cluster_utils.Cluster``: a head and a second node with their own resources, 1 CPU each, no
+dashboard, bound to 127.0.0.1, a private temp dir) runs in a subprocess: this file as a script. On Linux Ray
+rewrites a loopback address to the machine's outward IP before connecting (``resolve_ip_for_localhost``);
+``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` in the subprocess keeps every connection on 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# SAC's cart-pole recipe and budget of tests/test_offpolicy_training.py (final return >= 150 there; seeds 0-2 at
+# 450k: 194-198), with 1 worker x 16 envs on each of the two nodes (2 x 16 envs as in that test) and a smaller
+# ring per worker (4 rings of 250k transitions: the two hosts' and the learner's copies).
+RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
+          "publish_every": 32, "utd": 0.0125, "learning_starts": 5_000, "replay_capacity": 250_000,
+          "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3,
+          "gamma": 0.98, "tau": 0.02}
+STEPS = 450_000
+KILL_AT = 150_000  # env steps received when the second node is removed (SIGKILL of its raylet and workers)
+
+
+def _ray_processes(temp_dir: str) -> list[str]:
+    """Command lines of live processes started for the cluster in ``temp_dir``."""
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                cmd = f.read().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if temp_dir in cmd:
+            found.append(f"{pid}: {cmd[:200]}")
+    return found
+
+
+def _cluster_run(temp_dir: str, logdir: str) -> dict:
+    """Starts the cluster, trains with the killer thread, shuts everything down; returns what happened."""
+    import threading
+    import time
+
+    import ray
+    from ray.cluster_utils import Cluster
+
+    from unilab_jax import algos
+    from unilab_jax.config import apply_overrides
+    from unilab_jax.trainer import RunConfig, Trainer
+
+    t0 = time.time()
+    node = {"num_cpus": 1, "node_ip_address": "127.0.0.1", "temp_dir": temp_dir, "include_dashboard": False,
+            "object_store_memory": 100 * 1024 * 1024}
+    cluster = Cluster(initialize_head=True, head_node_args=node)
+    try:
+        second = cluster.add_node(**{**node, "resources": {"second_host": 1}})
+        cluster.wait_for_nodes()
+        up_s = time.time() - t0
+        module = algos.get("sac")
+        run = RunConfig(algo="sac", task="cartpole_balance", num_workers=1, envs_per_worker=16, total_steps=STEPS,
+                        logdir=logdir, ray_address=cluster.address, ray_workers_per_host=1)
+        trainer = Trainer(run, module, apply_overrides(module.Config(), RECIPE), {})
+        killed: dict = {}
+
+        def kill_second_node() -> None:
+            metrics = os.path.join(logdir, "metrics.jsonl")
+            while not trainer._stop.is_set():
+                time.sleep(0.2)
+                if not os.path.exists(metrics):
+                    continue
+                with open(metrics) as f:
+                    rows = [json.loads(line) for line in f if line.endswith("\n")]
+                steps = [r["step"] for r in rows if r.get("ray/hosts_alive") == 2]
+                if steps and steps[-1] >= KILL_AT:
+                    killed["at"] = steps[-1]
+                    cluster.remove_node(second, allow_graceful=False)
+                    return
+
+        killer = threading.Thread(target=kill_second_node, daemon=True)
+        killer.start()
+        summary = trainer.train()
+        killer.join(timeout=5)
+        rows = [json.loads(line) for line in open(os.path.join(logdir, "metrics.jsonl"))]
+        alive = [(r["step"], r["ray/hosts_alive"]) for r in rows if "ray/hosts_alive" in r]
+        return {"summary": summary, "killed_at": killed.get("at"), "alive": alive, "up_s": up_s,
+                "overrun": max(r["ray/rows_overrun"] for r in rows if "ray/rows_overrun" in r),
+                "wall_s": time.time() - t0}
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+
+
+def test_nothing_imports_ray_without_ray_address():
+    code = ("import sys; import unilab_jax.trainer, unilab_jax.cli, unilab_jax.runtime.pool, "
+            "unilab_jax.runtime.ray_pool, unilab_jax.runtime.host_rollouts, unilab_jax.sharding; "
+            "from unilab_jax.trainer import RunConfig; RunConfig('sac', 'cartpole_balance'); "
+            "print(sorted(m for m in sys.modules if m == 'ray' or m.startswith('ray.')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_two_node_cluster_trains_cartpole_and_survives_a_lost_node(tmp_path):
+    pytest.importorskip("ray")
+    temp_dir = tempfile.mkdtemp(prefix="uray", dir="/tmp")  # short: Ray's unix socket paths must fit 107 bytes
+    env = dict(os.environ, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_USAGE_STATS_ENABLED="0",
+               PYTHONPATH=os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH", "")) if p))
+    try:
+        out = subprocess.run([sys.executable, os.path.abspath(__file__), temp_dir, str(tmp_path / "run")], env=env,
+                             capture_output=True, text=True, timeout=600, cwd=ROOT)
+        assert out.returncode == 0, out.stderr[-5000:]
+        result = json.loads(out.stdout.strip().splitlines()[-1])
+        leftover = _ray_processes(temp_dir)
+    finally:
+        import shutil
+
+        shutil.rmtree(temp_dir, ignore_errors=True)
+    assert not leftover, leftover
+    summary = result["summary"]
+    assert summary["env_steps"] >= STEPS and not summary["interrupted"], result
+    assert result["killed_at"] is not None and result["killed_at"] < STEPS, result
+    hosts = [n for _, n in result["alive"]]
+    assert hosts[0] == 2 and hosts[-1] == 1, result["alive"]  # both hosts fed the learner, then one went on alone
+    assert result["overrun"] == 0, result
+    assert summary["eval/return"] >= 150.0, result
+
+
+if __name__ == "__main__":
+    print(json.dumps(_cluster_run(sys.argv[1], sys.argv[2]), default=float))
