@@ -1,5 +1,6 @@
 """Data-parallel learners (``unilab_jax/sharding.py``): on 2 emulated CPU devices the sharded update equals the
-single-device one (same state, batches and key) within float tolerance, for FastSAC, TD3 and PPO; the sharded
+single-device one (same state, batches and key) within float tolerance, for FastSAC and PPO (TD3, SAC and FlashSAC
+share FastSAC's wrapper; TD3 measured 6e-8); the sharded
 device replay mirror draws the same rows as the single-device one; bad ``--devices`` values are refused.
 
 The device count of the CPU backend is fixed when jax starts (``XLA_FLAGS=--xla_force_host_platform_device_count``),
@@ -155,8 +156,8 @@ def _run_script(*args: str, tmp: str = "") -> dict:
 
 
 def test_sharded_updates_equal_single_device(tmp_path):
-    result = _run_script("fastsac", "td3", "ppo", "mirror", "train", tmp=str(tmp_path))
-    for name in ("fastsac", "td3", "ppo"):
+    result = _run_script("fastsac", "ppo", "mirror", "train", tmp=str(tmp_path))
+    for name in ("fastsac", "ppo"):
         r = result[name]
         assert r["moved"] > 1e-3, r  # the updates changed the state, so equality is not trivial
         assert r["state"] <= ATOL and r["metrics"] <= ATOL, (name, r)
