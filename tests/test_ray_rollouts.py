@@ -110,6 +110,27 @@ def test_nothing_imports_ray_without_ray_address():
     assert out.stdout.strip().splitlines()[-1] == "[]"
 
 
+@pytest.mark.parametrize("algo,flags,message", [
+    ("sac", ["--ray_address=head-without-port"], "give 'auto' or HOST:PORT"),
+    ("sac", ["--ray_address=10.0.0.1:99999"], "give 'auto' or HOST:PORT"),
+    ("ppo", ["--ray_address=auto"], "off-policy algorithms only"),
+    ("sac", ["--ray_address=auto", "--serial"], "cannot be combined with --serial"),
+    ("sac", ["--ray_workers_per_host=4"], "needs --ray_address"),
+    ("sac", ["--devices=0"], "give 'all' or a positive number"),
+    ("sac", ["--devices=64"], r"local cpu device\(s\) exist"),
+    ("sac", ["--devices=2", "--platform=mlx"], "data-parallel learners are JAX's"),
+])
+def test_scale_out_flags_fail_before_anything_starts(tmp_path, algo, flags, message):
+    from absl.testing import flagsaver
+
+    from unilab_jax import cli
+
+    with flagsaver.flagsaver():
+        cli.FLAGS(["prog", *flags, f"--logdir={tmp_path / 'x'}"])
+        with pytest.raises(cli.FlagError, match=message):
+            cli.build_run(algo, "cartpole_balance", {}, {}, 1000)
+
+
 def test_two_node_cluster_trains_cartpole_and_survives_a_lost_node(tmp_path):
     pytest.importorskip("ray")
     temp_dir = tempfile.mkdtemp(prefix="uray", dir="/tmp")  # short: Ray's unix socket paths must fit 107 bytes
