@@ -38,13 +38,10 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if REPO not in sys.path:
     sys.path.insert(0, REPO)
 
-from tasks.base import TaskSpec  # noqa: E402
+from bench.learner_update import SPEC as GO1  # noqa: E402  (Go1 sizes: actor 48, critic 123, 12 actions)
+from bench.learner_update import _replay_batch  # noqa: E402
 from unilab_jax import algos  # noqa: E402
 from unilab_jax.config import apply_overrides  # noqa: E402
-
-# Go1 joystick sizes (actor 48, privileged critic 123, 12 actions).
-GO1 = TaskSpec(name="go1_sizes", obs_dim=48, critic_obs_dim=123, action_dim=12, episode_length=1000, ctrl_dt=0.02,
-               reward_terms=("r",))
 
 
 def machine_info() -> dict:
@@ -61,16 +58,6 @@ def machine_info() -> dict:
             "jax": jax.__version__, "jax_backend": jax.default_backend(),
             "jax_devices": [str(d) for d in jax.devices()], "xla_flags": os.environ.get("XLA_FLAGS", ""),
             "loadavg_at_end": list(os.getloadavg())}
-
-
-def _replay_batch(rng: np.random.Generator, u: int, b: int) -> dict[str, np.ndarray]:
-    s, a, f = GO1, GO1.action_dim, np.float32
-    return {"obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
-            "critic_obs": rng.normal(size=(u, b, s.critic_obs_dim)).astype(f),
-            "action": np.tanh(rng.normal(size=(u, b, a))).astype(f), "reward": (rng.random((u, b)) * 0.02).astype(f),
-            "next_obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
-            "next_critic_obs": rng.normal(size=(u, b, s.critic_obs_dim)).astype(f),
-            "terminated": rng.random((u, b)) < 0.01, "truncated": rng.random((u, b)) < 0.001}
 
 
 def learner(args: argparse.Namespace) -> list[dict]:
