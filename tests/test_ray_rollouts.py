@@ -100,6 +100,48 @@ def _cluster_run(temp_dir: str, logdir: str, seed: int = 0) -> dict:
         cluster.shutdown()
 
 
+def _store_only_pool(envs: int = 2):
+    """A RayPool with its learner-side rings and bookkeeping but no Ray: ``_store`` as the pump calls it."""
+    import numpy as np
+
+    from unilab_jax.runtime.buffers import ReplayBuffer
+    from unilab_jax.runtime.ray_pool import RayPool
+
+    pool = object.__new__(RayPool)
+    pool.envs_per_worker, pool.hosts, pool.offsets = envs, ["a", "b"], np.array([0, 1, 3])
+    pool.buffer = ReplayBuffer.create({"obs": ((1,), np.float32)}, 3, envs, 64)
+    pool._seq, pool._next = [0, 0], np.zeros(3, np.int64)
+    pool._received, pool._host_stats, pool.overrun = np.zeros(2, np.int64), [None, None], 0
+    return pool
+
+
+def _reply(seq, start, n):
+    import numpy as np
+
+    rows = np.concatenate([np.arange(s, s + k, dtype=np.float32) for s, k in zip(start, n)])[:, None]
+    return {"seq": seq, "start": np.array(start), "n": np.array(n), "rows": {"obs": rows}, "stats": {}}
+
+
+def test_pulled_rows_land_once_in_order_and_repeats_are_refused():
+    import numpy as np
+
+    pool = _store_only_pool()
+    try:
+        pool._store(1, _reply(1, [0, 0], [4, 2]))  # host b: its workers are rings 1 and 2
+        pool._store(1, _reply(2, [4, 2], [2, 0]))
+        pool._store(0, _reply(1, [6], [2]))  # host a skipped rows 0-5 (its ring overran): counted, not invented
+        assert pool.buffer.count(1) == 6 and pool.buffer.count(2) == 2 and pool.buffer.count(0) == 2
+        np.testing.assert_array_equal(pool.buffer._data[1]["obs"][:6, 0], np.arange(6))
+        np.testing.assert_array_equal(pool.buffer._data[0]["obs"][:2, 0], [6, 7])
+        assert pool.overrun == 6 and pool._received.tolist() == [2, 8]
+        with pytest.raises(RuntimeError, match="pull 2 after pull 2"):
+            pool._store(1, _reply(2, [6, 2], [2, 0]))  # the same pull again
+        with pytest.raises(RuntimeError, match="rows from 4"):
+            pool._store(1, _reply(3, [4, 2], [2, 0]))  # rows already received
+    finally:
+        pool.buffer.close()
+
+
 def test_nothing_imports_ray_without_ray_address():
     code = ("import sys; import unilab_jax.trainer, unilab_jax.cli, unilab_jax.runtime.pool, "
             "unilab_jax.runtime.ray_pool, unilab_jax.runtime.host_rollouts, unilab_jax.sharding; "

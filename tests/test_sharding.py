@@ -9,6 +9,7 @@ so the comparison runs in a fresh interpreter (this file as a script), whatever 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -133,6 +134,10 @@ def _train(tmp: str) -> dict:
         assert isinstance(trainer.learner, sharding.DataParallel)
         summary = trainer.train()
         out[algo] = {"updates": summary["updates"], "return": summary["eval/return"]}
+    # Resume of the sharded PPO run: the checkpoint's state is replicated again and training goes on.
+    resumed = Trainer(dataclasses.replace(run, total_steps=2_048, resume=True), module,
+                      apply_overrides(module.Config(), recipe), {}).train()
+    out["ppo_resumed_updates"] = resumed["updates"]
     return out
 
 
@@ -164,7 +169,8 @@ def test_sharded_updates_equal_single_device(tmp_path):
     assert result["mirror"] == {"same": True, "split": [2, "batch"], "data_devices": 2}
     # The Trainer with --devices=2 (serial workers, tiny budgets): it updates and evaluates.
     assert result["train"]["fastsac"]["updates"] > 0 and result["train"]["ppo"]["updates"] == 1_024 // 128
-    assert all(r["return"] > 0 for r in result["train"].values()), result["train"]
+    assert all(r["return"] > 0 for k, r in result["train"].items() if k != "ppo_resumed_updates"), result["train"]
+    assert result["train"]["ppo_resumed_updates"] == 2_048 // 128
 
 
 def test_devices_flag_values_are_checked():
