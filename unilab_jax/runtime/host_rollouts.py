@@ -44,9 +44,10 @@ class HostRollouts:
         self._seq = 0
         self.fields = tuple(self.pool.fields)
 
-    def start(self, timeout: float = 300.0) -> dict[str, Any]:
+    def start(self, timeout: float = 300.0) -> int:
+        """Starts the workers; returns their number once each has built its task."""
         self.pool.start(timeout=timeout)
-        return {"workers": self.pool.num_workers, "pid_of_workers": self.pool.stats()["worker_pids"]}
+        return self.pool.num_workers
 
     def publish(self, weights: Any, version: int) -> None:
         if version > self.pool.version:

@@ -76,14 +76,9 @@ class RayPool:
                  workers_per_host: int | None = None, pull_rows: int = 4096, pull_wait_s: float = 0.05,
                  lost_host_timeout: float | None = 60.0, **pool_kwargs: Any):
         import ray
-        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
-
-        import tasks
-        from unilab_jax.runtime.buffers import transition_layout
 
         if pool_kwargs.pop("serial", False):
             raise ValueError("Ray rollouts run worker processes; serial mode is local only")
-        pool_kwargs.pop("horizon", None)
         algo = load_algo(algo_module)
         if algo.BUFFER != "replay":
             raise ValueError(f"{algo_module}: Ray rollouts carry replay transitions (off-policy algorithms only)")
@@ -95,11 +90,32 @@ class RayPool:
         self.envs_per_worker = int(envs_per_worker)
         self._pull = (int(pull_rows), float(pull_wait_s))
         self._lost_timeout = lost_host_timeout
+        self._actors: list[Any] = []
+        self.buffer = None
+        try:
+            self._connect(task_name, task_overrides, num_workers, envs_per_worker, seed, algo, algo_module,
+                          weight_template, replay_capacity, workers_per_host, pool_kwargs)
+        except BaseException:
+            self.alive = [False] * len(self._actors)  # none started: kill them, close nothing
+            self._teardown()
+            raise
+        self._limit: int | None = max_env_steps
+
+    def _connect(self, task_name: str, task_overrides: Mapping[str, Any] | None, num_workers: int,
+                 envs_per_worker: int, seed: int, algo: Any, algo_module: str, weight_template: Any,
+                 replay_capacity: int, workers_per_host: int | None, pool_kwargs: dict) -> None:
+        """Finds the nodes, creates the learner-side rings and one actor per node (not started yet)."""
+        import ray
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        import tasks
+        from unilab_jax.runtime.buffers import transition_layout
+
         here = ray.get_runtime_context().get_node_id()
         nodes = sorted((n for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0) > 0),
                        key=lambda n: n["NodeID"] != here)  # the learner's node first
         if not nodes:
-            raise RuntimeError(f"the Ray cluster at {address} has no alive node with CPUs")
+            raise RuntimeError("the Ray cluster has no alive node with CPUs")
         self.hosts = [n["NodeManagerAddress"] + (" (learner)" if n["NodeID"] == here else "") for n in nodes]
         counts = [num_workers if n["NodeID"] == here else (workers_per_host or num_workers) for n in nodes]
         self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(int)
@@ -110,7 +126,6 @@ class RayPool:
         self.fields = transition_layout(self.spec, algo.extras(self.spec.action_dim))
         self.buffer = ReplayBuffer.create(self.fields, self.num_workers, envs_per_worker, replay_capacity)
         remote = ray.remote(HostRollouts)
-        self._actors = []
         for h, node in enumerate(nodes):
             strategy = NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)
             self._actors.append(remote.options(num_cpus=0, max_restarts=0, scheduling_strategy=strategy).remote(
@@ -128,7 +143,6 @@ class RayPool:
         self.overrun = 0
         self.version = -1
         self._weights_ref: Any = None
-        self._limit: int | None = max_env_steps
         self._error: BaseException | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -168,12 +182,17 @@ class RayPool:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=grace + 5.0)
+        self._teardown(grace)
+
+    def _teardown(self, grace: float = 5.0) -> None:
+        """Closes the alive hosts' pools, kills every actor, unlinks the rings, disconnects (if it connected)."""
         closing = [a.close.remote() for h, a in enumerate(self._actors) if self.alive[h]]
         if closing:
             self._ray.wait(closing, num_returns=len(closing), timeout=grace + 5.0)
         for a in self._actors:
             self._kill(a)
-        self.buffer.close()
+        if self.buffer is not None:
+            self.buffer.close()
         if self._owns_ray:
             self._ray.shutdown()
 
