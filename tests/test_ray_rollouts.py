@@ -27,8 +27,9 @@ RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256
           "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3,
           "gamma": 0.98, "tau": 0.02}
 STEPS = 450_000
-# Measured (2-core VM, load ~15 from other jobs), seeds 0, 1, 2: final return 168, 199, 186 (second node killed
-# at 154k, 152k, 156k env steps); 55-58 s per run, the cluster up in 8-12 s. Threshold 150, as the local test.
+# Measured (2-core VM, load 15-20 from other jobs), seeds 0-5: final return 168, 199, 186, 200, 195, 195 (second
+# node killed at 151-156k env steps); 55-68 s per run, the cluster up in 8-16 s. Threshold 150, as the local test
+# (18 below the lowest seed).
 KILL_AT = 150_000  # env steps received when the second node is removed (SIGKILL of its raylet and workers)
 
 
