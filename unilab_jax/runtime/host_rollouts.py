@@ -27,9 +27,9 @@ import numpy as np
 
 from unilab_jax.runtime.pool import WorkerPool
 
-STAT_KEYS = ("env_steps", "episodes", "worker_restarts", "nonfinite_rows", "interrupted_steps", "workers_waiting",
-             "worker_wait_s", "recent_episode_returns", "recent_episode_lengths", "reward_terms",
-             "worker_time_fraction")
+STAT_KEYS = ("env_steps", "episodes", "episode_terminated_fraction", "worker_restarts", "nonfinite_rows",
+             "interrupted_steps", "workers_waiting", "worker_wait_s", "recent_episode_returns",
+             "recent_episode_lengths", "reward_terms", "worker_time_fraction")
 
 
 class HostRollouts:

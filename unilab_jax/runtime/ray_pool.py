@@ -335,12 +335,16 @@ class RayPool:
         returns = np.concatenate([s["recent_episode_returns"] for s in got]) if got else np.zeros(0)
         lengths = np.concatenate([s["recent_episode_lengths"] for s in got]) if got else np.zeros(0)
         fractions = [s["worker_time_fraction"] for s in got]
+        ended = [(s["episode_terminated_fraction"], s["recent_episode_returns"].size) for s in got
+                 if s["recent_episode_returns"].size]
         return {
             "env_steps": steps, "env_steps_per_s": (steps - prev_steps) / max(now - prev_t, 1e-9),
             "env_steps_per_s_total": steps / max(now - self._t_start, 1e-9),
             "episodes": sum(int(s["episodes"]) for s in got),
             "episode_return_mean": float(returns.mean()) if returns.size else float("nan"),
             "episode_length_mean": float(lengths.mean()) if lengths.size else float("nan"),
+            "episode_terminated_fraction": sum(f * n for f, n in ended) / sum(n for _, n in ended) if ended
+            else float("nan"),
             "recent_episode_returns": returns, "recent_episode_lengths": lengths,
             "reward_terms": {k: float(np.mean([s["reward_terms"][k] for s in got])) for k in self.spec.reward_terms}
             if got else {},
