@@ -162,16 +162,21 @@ def test_nothing_imports_ray_without_ray_address():
     ("sac", ["--devices=0"], "give 'all' or a positive number"),
     ("sac", ["--devices=64"], r"local cpu device\(s\) exist"),
     ("sac", ["--devices=2", "--platform=mlx"], "data-parallel learners are JAX's"),
+    ("mjx", ["--devices=2"], "MJX runs train on one device"),
+    ("mjx", ["--ray_address=auto"], "flag of the CPU-worker runtime"),
 ])
 def test_scale_out_flags_fail_before_anything_starts(tmp_path, algo, flags, message):
     from absl.testing import flagsaver
 
-    from unilab_jax import cli
+    from unilab_jax import cli, mjx_cli
 
     with flagsaver.flagsaver():
         cli.FLAGS(["prog", *flags, f"--logdir={tmp_path / 'x'}"])
         with pytest.raises(cli.FlagError, match=message):
-            cli.build_run(algo, "cartpole_balance", {}, {}, 1000)
+            if algo == "mjx":
+                mjx_cli.build_run("ppo", "go1_joystick_flat", {}, {}, 1000, 64, 1)
+            else:
+                cli.build_run(algo, "cartpole_balance", {}, {}, 1000)
 
 
 def test_two_node_cluster_trains_cartpole_and_survives_a_lost_node(tmp_path):
