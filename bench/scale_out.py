@@ -28,6 +28,7 @@ import datetime
 import json
 import os
 import platform
+import shutil
 import socket
 import sys
 import time
@@ -111,10 +112,16 @@ def rollouts(args: argparse.Namespace) -> tuple[list[dict], dict]:
     cluster = None
     address = args.ray_address
     if args.local_nodes:  # started before jax is imported (Ray forks its processes)
+        import tempfile
+
+        # A private temp root (Ray writes its address file under $RAY_TMPDIR/ray and needs that folder).
+        private = tempfile.mkdtemp(prefix="uray", dir="/tmp")
+        os.environ.setdefault("RAY_TMPDIR", private)
+        os.makedirs(os.path.join(os.environ["RAY_TMPDIR"], "ray"), exist_ok=True)
         from ray.cluster_utils import Cluster
 
         node = {"num_cpus": 1, "node_ip_address": "127.0.0.1", "include_dashboard": False,
-                "object_store_memory": 200 * 1024 * 1024}
+                "object_store_memory": 200 * 1024 * 1024, "temp_dir": os.path.join(os.environ["RAY_TMPDIR"], "ray")}
         cluster = Cluster(initialize_head=True, head_node_args=node)
         for _ in range(args.local_nodes - 1):
             cluster.add_node(**node)
@@ -125,6 +132,7 @@ def rollouts(args: argparse.Namespace) -> tuple[list[dict], dict]:
     finally:
         if cluster is not None:
             cluster.shutdown()
+            shutil.rmtree(private, ignore_errors=True)
 
 
 def _rollouts(args: argparse.Namespace, address: str) -> tuple[list[dict], dict]:

@@ -182,10 +182,14 @@ def test_scale_out_flags_fail_before_anything_starts(tmp_path, algo, flags, mess
 def test_two_node_cluster_trains_cartpole_and_survives_a_lost_node(tmp_path):
     pytest.importorskip("ray")
     temp_dir = tempfile.mkdtemp(prefix="uray", dir="/tmp")  # short: Ray's unix socket paths must fit 107 bytes
-    env = dict(os.environ, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_USAGE_STATS_ENABLED="0",
+    # Ray writes the cluster's address to $RAY_TMPDIR/ray/ray_current_cluster whatever the temp dir (and fails if that
+    # folder is missing): point it at the private folder too, so nothing lands in /tmp/ray.
+    os.makedirs(os.path.join(temp_dir, "ray"))
+    env = dict(os.environ, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_USAGE_STATS_ENABLED="0", RAY_TMPDIR=temp_dir,
                PYTHONPATH=os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH", "")) if p))
     try:
-        out = subprocess.run([sys.executable, os.path.abspath(__file__), temp_dir, str(tmp_path / "run")], env=env,
+        out = subprocess.run([sys.executable, os.path.abspath(__file__), os.path.join(temp_dir, "ray"),
+                              str(tmp_path / "run")], env=env,
                              capture_output=True, text=True, timeout=600, cwd=ROOT)
         assert out.returncode == 0, out.stderr[-5000:]
         result = json.loads(out.stdout.strip().splitlines()[-1])
