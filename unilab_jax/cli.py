@@ -87,6 +87,12 @@ flags.DEFINE_integer("utd_window", 0, "with --utd_mode=hold: env steps the worke
                      "(0: four learner calls' worth)")
 flags.DEFINE_integer("pin_cpus", -1, "worker CPU affinity: -1 none; K >= 0: each worker pinned to its share of the "
                      "usable cores except the first K, which stay free for the learner process")
+flags.DEFINE_string("devices", "1", "JAX learner: local accelerators to train on data-parallel, 'all' or a number "
+                    "(the batch is split across them, parameters replicated; 1: the single-device path)")
+flags.DEFINE_string("ray_address", "", "off-policy: run rollout workers on every node of this Ray cluster, 'auto' or "
+                    "HOST:PORT of its head (empty: this host only; Ray is not imported)")
+flags.DEFINE_integer("ray_workers_per_host", 0, "with --ray_address: worker processes on each node other than the "
+                     "learner's (0: --num_workers)")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
@@ -191,6 +197,18 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     batch = config.horizon * FLAGS.num_workers * FLAGS.envs_per_worker
     if module.BUFFER == "trajectory" and batch < config.num_minibatches:
         raise FlagError(f"a batch of {batch} transitions cannot make {config.num_minibatches} minibatches")
+    if FLAGS.devices != "1":
+        if FLAGS.platform != "jax":
+            raise FlagError(f"--devices={FLAGS.devices}: data-parallel learners are JAX's (--platform=jax)")
+        from unilab_jax import sharding
+
+        try:
+            sharding.check_run(FLAGS.devices, FLAGS.platform, config, module.BUFFER, FLAGS.num_workers,
+                               FLAGS.envs_per_worker)
+        except ValueError as e:
+            raise FlagError(str(e)) from e
+    if FLAGS.ray_address or FLAGS.ray_workers_per_host:
+        _check_ray_flags(module)
     logdir = FLAGS.logdir or os.path.join("runs", f"{algo}_{task_name}_s{FLAGS.seed}")
     if FLAGS.resume and not os.path.isdir(os.path.join(logdir, "checkpoints")):
         raise FlagError(f"--resume: no checkpoints under {logdir!r}")
@@ -205,8 +223,31 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     replay_disk_gb=FLAGS.replay_disk_gb, replay_hot_fraction=FLAGS.replay_hot_fraction,
                     replay_chunk_rows=FLAGS.replay_chunk_rows, replay_on_device=FLAGS.replay_on_device,
                     utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window, pin_cpus=FLAGS.pin_cpus,
-                    video_every=FLAGS.video_every)
+                    video_every=FLAGS.video_every, devices=FLAGS.devices, ray_address=FLAGS.ray_address,
+                    ray_workers_per_host=FLAGS.ray_workers_per_host)
     return run, module, config, task_overrides
+
+
+def _check_ray_flags(module: Any) -> None:
+    """``--ray_address`` / ``--ray_workers_per_host`` checks (no connection is made here)."""
+    import importlib.util
+
+    from unilab_jax.runtime.ray_pool import check_address
+
+    if not FLAGS.ray_address:
+        raise FlagError("--ray_workers_per_host needs --ray_address")
+    try:
+        check_address(FLAGS.ray_address)
+    except ValueError as e:
+        raise FlagError(str(e)) from e
+    if module.BUFFER != "replay":
+        raise FlagError("--ray_address: Ray rollouts carry replay transitions (off-policy algorithms only)")
+    if FLAGS.serial:
+        raise FlagError("--ray_address runs worker processes on every host: it cannot be combined with --serial")
+    if FLAGS.ray_workers_per_host < 0:
+        raise FlagError(f"--ray_workers_per_host must be >= 0, got {FLAGS.ray_workers_per_host}")
+    if importlib.util.find_spec("ray") is None:
+        raise FlagError("--ray_address: Ray is not installed; pip install 'unilab-jax[ray]'")
 
 
 def _check_video() -> None:

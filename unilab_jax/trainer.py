@@ -78,6 +78,14 @@ class RunConfig:
     # Worker CPU affinity: -1 none; K >= 0: workers pinned to the usable CPUs except the first K, which stay free
     # for the learner process (runtime/pool.py cpu_placement).
     pin_cpus: int = -1
+    # JAX learner: "1" (one device, the plain path), "N" or "all": data-parallel over the first N local devices
+    # (unilab_jax/sharding.py; the batch axis must divide evenly).
+    devices: str = "1"
+    # Off-policy: rollouts on every node of a Ray cluster ("auto" or HOST:PORT of its head; "" = this host only,
+    # Ray not imported). The learner's node runs num_workers workers, every other node ray_workers_per_host
+    # (0: num_workers). unilab_jax/runtime/ray_pool.py.
+    ray_address: str = ""
+    ray_workers_per_host: int = 0
 
 
 def _learner_platform(platform: str) -> Any:
@@ -111,6 +119,13 @@ class Trainer:
         probe.close()
         self.xp = _learner_platform(run.platform)
         self.learner = algos.make_learner(algo_module, run.platform, algo_config, self.spec)
+        self.parallel = None  # the DataParallel learner of --devices > 1
+        if run.devices != "1":
+            from unilab_jax import sharding
+
+            self.parallel = sharding.for_run(self.learner, run, algo_config, algo_module.BUFFER)
+            self.learner = self.parallel or self.learner
+        self.batch_xp = self.parallel or self.xp  # what the batch sources place host arrays with (from_numpy)
         self.logger = MetricLogger(run.logdir)
         self.ckpt_dir = os.path.join(os.path.abspath(run.logdir), "checkpoints")
         self._stop = threading.Event()
@@ -128,6 +143,8 @@ class Trainer:
                 raise FileNotFoundError(f"--resume: no checkpoint under {self.ckpt_dir}")
             state, meta = ckpt.restore(state, lambda a, like: self.xp.from_numpy(a))
             ckpt.close()
+            if self.parallel is not None:
+                state = self.parallel.replicate(state)
             self._resumed_meta = meta
             counters = {k: int(v) for k, v in meta["counters"].items()}
             if meta.get("task") != self.run.task or meta.get("algo") != self.run.algo:
@@ -159,7 +176,7 @@ class Trainer:
             return None
         from unilab_jax.device_replay import DeviceReplay
 
-        return DeviceReplay(pool.buffer, REPLAY_FIELDS)
+        return DeviceReplay(pool.buffer, REPLAY_FIELDS, self.parallel)
 
     def _open_replay_store(self) -> Any:
         """The persistent replay store of ``run.replay_dir`` (None when off).
@@ -231,15 +248,20 @@ class Trainer:
         hold_window = self._hold_window(cfg) if replay else None
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
         store = self._open_replay_store() if replay else None
-        pool = WorkerPool(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
-                          envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
-                          algo_module=self.algo.__name__, weight_template=weights,
-                          horizon=getattr(cfg, "horizon", 32), serial=run.serial,
-                          replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
-                          if replay else 0,
-                          max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None,
-                          worker_cpus=cpu_placement(run.num_workers, run.pin_cpus)
-                          if run.pin_cpus >= 0 and not run.serial else None)
+        pool_kwargs = dict(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
+                           envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
+                           algo_module=self.algo.__name__, weight_template=weights,
+                           horizon=getattr(cfg, "horizon", 32), serial=run.serial,
+                           replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
+                           if replay else 0,
+                           max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
+        if run.ray_address:
+            from unilab_jax.runtime.ray_pool import RayPool
+
+            pool = RayPool(run.ray_address, workers_per_host=run.ray_workers_per_host or None, **pool_kwargs)
+        else:
+            pool = WorkerPool(**pool_kwargs, worker_cpus=cpu_placement(run.num_workers, run.pin_cpus)
+                              if run.pin_cpus >= 0 and not run.serial else None)
         ckpt = Checkpointer(self.ckpt_dir)
         restore_signals = stop_on_signals(stop)
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
@@ -254,10 +276,10 @@ class Trainer:
             pool.start(stop=stop.is_set)
             # The source before the first weights: replay workers wait for them, so a held run's step
             # limit is in place before any env step.
-            source = (_ReplaySource(pool, self.xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
+            source = (_ReplaySource(pool, self.batch_xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
                                     self._resumed_meta.get("replay"), self._device_replay(pool),
                                     total_steps=run.total_steps, hold_window=hold_window)
-                      if replay else _TrajectorySource(pool, self.xp, self.spec.reward_terms))
+                      if replay else _TrajectorySource(pool, self.batch_xp, self.spec.reward_terms))
             pool.publish(weights, counters["version"])
             prefetch = _Prefetcher(source.produce, inline=run.serial)
             t_last, steps_last = time.time(), counters["env_steps"]
@@ -806,6 +828,7 @@ class _ReplaySource:
         hot = float(st.get("replay_size", 0))
         # Replay workers wait only for the first weights and at the step limit: the pause of a held ratio.
         out = {"replay/size": hot, "perf/workers_paused_s": st["worker_wait_s"], **_worker_scalars(st)}
+        out.update({f"ray/{k}": v for k, v in st.get("ray", {}).items()})  # Ray rollouts: hosts alive, lost
         if self._store is not None:
             disk = self._store.size
             # Rings and disk overlap (every ring row is written through): distinct rows ~ the larger tier.
