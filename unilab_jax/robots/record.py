@@ -49,8 +49,9 @@ def _privileged(task: Any, critic_obs: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def record(addresses: list[str], task_name: str, episodes: int, out: str, device: str = "expert",
-           seed: int = 0) -> dict[str, Any]:
-    """Records ``episodes`` whole episodes from the robot servers at ``addresses`` into a new store in ``out``."""
+           seed: int = 0, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Records ``episodes`` whole episodes from the robot servers at ``addresses`` into a new store in ``out``
+    (``overrides``: the task's, as the training run will give them)."""
     import tasks
     from unilab_jax.runtime.replay_store import ReplayStore
 
@@ -60,7 +61,8 @@ def record(addresses: list[str], task_name: str, episodes: int, out: str, device
         raise ValueError(f"--out={out!r} is not empty: record into a new folder")
     if device != "expert" and len(addresses) != 1:
         raise ValueError(f"--device={device} drives one robot; the inventory has {len(addresses)}")
-    task = tasks.make(task_name, num_envs=len(addresses), seed=seed, overrides={"robots": tuple(addresses)})
+    task = tasks.make(task_name, num_envs=len(addresses), seed=seed,
+                      overrides={**(overrides or {}), "robots": tuple(addresses)})
     devices = [teleop.make_device(device, task.robot_spec) for _ in addresses]
     t_start = time.perf_counter()
     try:
@@ -122,6 +124,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--speed", type=float, default=20.0, help="speed-up of the sim: robots started here")
     p.add_argument("--device", default="expert", help=f"one of {teleop.DEVICES}")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--policy_state", action="store_true", help="record for runs with --task_config=policy_state=true")
     return p.parse_args(argv)
 
 
@@ -145,7 +148,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     with inventory.Inventory(entries, args.task.removeprefix("robot_"), args.speed, seed=args.seed) as inv:
-        summary = record(inv.addresses, args.task, args.episodes, args.out, args.device, args.seed)
+        summary = record(inv.addresses, args.task, args.episodes, args.out, args.device, args.seed,
+                         {"policy_state": args.policy_state})
     print(json.dumps(summary), flush=True)
     return 0
 

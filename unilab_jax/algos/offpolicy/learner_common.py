@@ -102,6 +102,10 @@ class SACFamilyBase:
         self.target_entropy = float(config.target_entropy_per_dim * spec.action_dim)
         self._project = getattr(algo, "project_params", None)
         self._reward_scale = getattr(algo, "reward_scale", None)
+        # An algorithm with ``critic_noise_shape(config)`` (RLPD) gets ``(eps_next, u)`` in its critic loss,
+        # ``u`` uniform of that shape, drawn per gradient step from a third key of the step's split.
+        shape = getattr(algo, "critic_noise_shape", None)
+        self.critic_noise_shape = None if shape is None else tuple(shape(config))
         self.trace_count = 0  # traces of the compiled update / step (tests assert no retracing)
 
     def init_params(self, key_words: np.ndarray) -> dict:

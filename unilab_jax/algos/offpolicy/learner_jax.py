@@ -1,4 +1,4 @@
-"""JAX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, TD3).
+"""JAX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, RLPD, TD3).
 
 ``init(key) -> state``; ``update(state, batch) -> (state, metrics)``; ``weights(state)`` (static).
 ``batch`` is a dict of arrays shaped ``[U, B, ...]`` (U = ``config.updates_per_call``, B =
@@ -85,9 +85,11 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
 
         def step(st: SACState, xs: tuple) -> tuple[SACState, dict]:
             mb, key = xs
-            k_next, k_pi = jax.random.split(key)
-            eps_next = jax.random.normal(k_next, mb["action"].shape, jnp.float32)
-            eps = jax.random.normal(k_pi, mb["action"].shape, jnp.float32)
+            keys = jax.random.split(key, 2 if self.critic_noise_shape is None else 3)
+            eps_next = jax.random.normal(keys[0], mb["action"].shape, jnp.float32)
+            eps = jax.random.normal(keys[1], mb["action"].shape, jnp.float32)
+            if self.critic_noise_shape is not None:
+                eps_next = (eps_next, jax.random.uniform(keys[2], self.critic_noise_shape, jnp.float32))
             # 1. critics
             (_, c_metrics), c_grads = jax.value_and_grad(algo.critic_loss, has_aux=True)(
                 st.critic, st.target_critic, st.actor, st.log_alpha, norms, mb, eps_next, cfg)

@@ -1,4 +1,4 @@
-"""MLX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, TD3), the same math as
+"""MLX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, RLPD, TD3), the same math as
 ``learner_jax`` (what does not depend on the platform is ``learner_common``'s, shared with it).
 
 ``SACFamilyLearner(algo, config, spec)`` and ``TD3Learner(config, spec)`` expose the JAX learners'
@@ -156,7 +156,8 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` is a no-op.
 
         ``noise`` (testing/parity only): ``{"eps_next": [U, B, A], "eps": [U, B, A]}`` replacing the
-        standard-normal draws made from the state's key (the key still advances as usual).
+        standard-normal draws made from the state's key (the key still advances as usual); algorithms
+        with a critic noise (RLPD) also take ``"u": [U, *critic_noise_shape]``.
         """
         if not batch:
             return state, {}
@@ -165,7 +166,7 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         norms = tuple(norms)
 
         n = batch["reward"].shape[0]
-        _check_noise(noise, ("eps_next", "eps"), n)
+        _check_noise(noise, ("eps_next", "eps") + (() if self.critic_noise_shape is None else ("u",)), n)
         keys = XP.random.split(state.key, n + 1)
         carry = (state.actor, state.critic, state.target_critic, state.actor_opt, state.critic_opt,
                  state.log_alpha, state.alpha_opt, state.steps)
@@ -173,9 +174,13 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         for i in range(n):
             mb = {k: v[i] for k, v in batch.items()}
             shape = tuple(mb["action"].shape)
-            k_next, k_pi = XP.random.split(keys[i + 1], 2)
-            eps_next = _noise(noise, "eps_next", i, shape, k_next)
-            eps = _noise(noise, "eps", i, shape, k_pi)
+            ks = XP.random.split(keys[i + 1], 2 if self.critic_noise_shape is None else 3)
+            eps_next = _noise(noise, "eps_next", i, shape, ks[0])
+            eps = _noise(noise, "eps", i, shape, ks[1])
+            if self.critic_noise_shape is not None:
+                u = (mx.array(np.asarray(noise["u"][i], np.float32)) if noise is not None
+                     else mx.random.uniform(shape=self.critic_noise_shape, dtype=mx.float32, key=ks[2]))
+                eps_next = (eps_next, u)
             carry, m = self._step(carry, norms, mb, eps_next, eps)
             mx.eval(carry, m)  # one eval per compiled step
             step_metrics.append(m)
