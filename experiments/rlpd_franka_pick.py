@@ -7,8 +7,10 @@
 Without ``--demos`` the scripted expert records ``--num_demos`` (20) episodes on the run's robots first
 (``LOGDIR/demos``). Each minibatch is half demonstrations, half online data (symmetric sampling), the
 critics a LayerNorm ensemble of 10 with a subset-of-2 min target. The policy sees proprioception and the
-robot's privileged object state (``policy_state``: the state-based stand-in for the cameras). Flags beside
-the shared ones: ``unilab_jax.robot_cli``. The recipe's ``utd`` (4) fits a CPU; the paper's 20 suits a GPU.
+robot's privileged object state (``policy_state``: the state-based stand-in for the cameras). Reward: 1 on
+success only (the episode then ends), as a physical robot's success detector gives it (``--dense_reward``
+adds the shaped term). Flags beside the shared ones: ``unilab_jax.robot_cli``. The recipe's ``utd`` (4)
+fits a CPU; the paper's 20 suits a GPU.
 """
 
 from unilab_jax.robot_cli import run_robot_experiment
@@ -18,4 +20,5 @@ RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), "batch_size":
 TASK = {"policy_state": True}
 
 if __name__ == "__main__":
-    run_robot_experiment("rlpd", "robot_pick_place", RECIPE, default_total_steps=36_000, task_recipe=TASK)
+    run_robot_experiment("rlpd", "robot_pick_place", RECIPE, default_total_steps=36_000, task_recipe=TASK,
+                         dense_reward=False)

@@ -2,8 +2,8 @@
 
     python experiments/sac_franka_peg.py --speed=20 --total_steps=2000 --logdir=runs/sac_peg
 
-Same networks, observations (``policy_state``), batch and update-to-data ratio as ``rlpd_franka_peg.py``;
-SAC's twin critics and no demonstrations. Flags beside the shared ones: ``unilab_jax.robot_cli``.
+Same networks, observations (``policy_state``), reward (success only), batch and update-to-data ratio as
+``rlpd_franka_peg.py``; SAC's twin critics and no demonstrations. Flags beside the shared ones: ``unilab_jax.robot_cli``.
 """
 
 from unilab_jax.robot_cli import run_robot_experiment
@@ -13,4 +13,5 @@ RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), "batch_size":
 TASK = {"policy_state": True}
 
 if __name__ == "__main__":
-    run_robot_experiment("sac", "robot_peg_insertion", RECIPE, default_total_steps=36_000, task_recipe=TASK)
+    run_robot_experiment("sac", "robot_peg_insertion", RECIPE, default_total_steps=36_000, task_recipe=TASK,
+                         dense_reward=False)

@@ -7,7 +7,8 @@ tasks through robot servers. ``experiments/sac_franka_pick.py`` and its siblings
 Flags beside the shared ones (``unilab_jax.cli``):
 
 * ``--robots``: a comma list or a ``.toml`` inventory (``unilab_jax.robots.inventory``): ``sim:NAME`` robots are
-  started here as local robot servers (``--speed`` times real time, dense reward, no cameras; stopped at exit),
+  started here as local robot servers (``--speed`` times real time, no cameras; stopped at exit; dense reward
+  or success only: ``--dense_reward``, default the experiment's),
   ``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and health first.
 * Assignment: one robot per rollout worker (``--num_workers`` defaults to the number of robots, less the
   ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
@@ -42,6 +43,8 @@ flags.DEFINE_string("robots", "sim:franka_emika_panda", "robot inventory: comma 
 flags.DEFINE_float("speed", 20.0, "wall-clock speed-up of the sim: robots this run starts")
 flags.DEFINE_string("demos", "", "prior data (RLPD): a replay store of demonstrations recorded on the same "
                     "inventory; empty: record --num_demos scripted-expert episodes into LOGDIR/demos first")
+flags.DEFINE_bool("dense_reward", None, "sim: robots this run starts: dense shaped reward plus the success bonus "
+                  "(else 1 on success only); default: the experiment's")
 flags.DEFINE_integer("num_demos", 20, "scripted-expert episodes recorded when --demos is not given (RLPD)")
 
 
@@ -106,13 +109,14 @@ def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tu
     return out, float(summary["robot_seconds"])
 
 
-def _train(validated: tuple) -> None:
+def _train(validated: tuple, dense_reward: bool) -> None:
     from unilab_jax.robots import inventory
     from unilab_jax.trainer import Trainer
 
     entries, (run, module, config, task_overrides) = validated
     robot_task = run.task.removeprefix("robot_")
-    with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed) as inv:
+    dense = dense_reward if FLAGS.dense_reward is None else FLAGS.dense_reward
+    with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense) as inv:
         try:
             found = inventory.discover(inv.addresses, task=robot_task)
         except inventory.InventoryError as e:
@@ -139,7 +143,8 @@ def _terminate(signum, frame):
 
 
 def run_robot_experiment(algo: str, task: str, recipe: Mapping[str, Any], default_total_steps: int,
-                         task_recipe: Mapping[str, Any] | None = None) -> None:
+                         task_recipe: Mapping[str, Any] | None = None, dense_reward: bool = True) -> None:
     """Parses and validates the flags, starts the robots (and records demonstrations), trains, prints the summary."""
     signal.signal(signal.SIGTERM, _terminate)
-    launch(lambda: _validate(algo, task, recipe, task_recipe or {}, default_total_steps), _train)
+    launch(lambda: _validate(algo, task, recipe, task_recipe or {}, default_total_steps),
+           lambda validated: _train(validated, dense_reward), errors=(ValueError,))  # config checks: exit 2

@@ -773,6 +773,7 @@ class _ReplaySource:
                 idx = rng.integers(0, len(self._prior["reward"]), size=u * b_prior)
                 out = rlpd.compose(out, {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))
                                          for k, v in self._prior.items()})
+                scalars["perf/prior_rows"] = float(b_prior)
         self._grad_steps += u
         self._produced += 1
         scalars.update({"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1})
