@@ -38,6 +38,13 @@ from absl import flags
 
 from unilab_jax.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
 
+# The manipulation recipe of sac_franka_peg, rlpd_franka_peg and rlpd_franka_pick: small networks and utd 4 fit a
+# 2-core CPU (``--config utd=20``: the RLPD paper's ratio, for a GPU); the policy sees the object state.
+MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), "batch_size": 128,
+                       "updates_per_call": 16, "publish_every": 16, "utd": 4.0, "learning_starts": 300,
+                       "replay_capacity": 200_000, "gamma": 0.95}
+STATE_TASK = {"policy_state": True}
+
 flags.DEFINE_string("robots", "sim:franka_emika_panda", "robot inventory: comma list of sim:NAME and "
                     "tcp://HOST:PORT, or a .toml file")
 flags.DEFINE_float("speed", 20.0, "wall-clock speed-up of the sim: robots this run starts")
