@@ -36,6 +36,7 @@ CASES = {
     "flashsac": (flashsac, dict(num_atoms=11)),  # projection, reward normalisation, clipping
     "td3": (td3, dict(policy_delay=2)),
     "rlpd": (rlpd, dict(num_critics=4, subset_size=2)),  # LayerNorm ensemble, subset-min target, mean-Q actor
+    "rlpd_delayed": (rlpd, dict(num_critics=3, subset_size=2, actor_every=2)),  # actor on every 2nd step only
 }
 
 
@@ -71,10 +72,10 @@ def _jax_noise(key, name: str) -> dict[str, np.ndarray]:
         return {"eps_next": np.stack([np.asarray(jax.random.normal(k, shape, jnp.float32)) for k in keys[1:]])}
     eps_next, eps, u = [], [], []
     for k in keys[1:]:
-        ks = jax.random.split(k, 3 if name == "rlpd" else 2)
+        ks = jax.random.split(k, 3 if name.startswith("rlpd") else 2)
         eps_next.append(np.asarray(jax.random.normal(ks[0], shape, jnp.float32)))
         eps.append(np.asarray(jax.random.normal(ks[1], shape, jnp.float32)))
-        if name == "rlpd":
+        if name.startswith("rlpd"):
             u.append(np.asarray(jax.random.uniform(ks[2], (CASES[name][1]["num_critics"],), jnp.float32)))
     return {"eps_next": np.stack(eps_next), "eps": np.stack(eps), **({"u": np.stack(u)} if u else {})}
 

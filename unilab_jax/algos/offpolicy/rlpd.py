@@ -10,7 +10,9 @@ with Offline Data", ICML 2023, arXiv:2302.02948). Design choices (the paper's):
   subset of ``subset_size`` (2) target members, redrawn every gradient step (``core.rlpd``); the loss is
   the mean squared error over all members.
 * The actor maximises the ensemble's mean Q minus the entropy term (SAC's tanh-Gaussian, ``sac.act``);
-  automatic temperature; a high update-to-data ratio (``utd``, 20 in the paper for sample efficiency).
+  automatic temperature; a high update-to-data ratio (``utd``, 20 in the paper for sample efficiency), with
+  the actor and temperature moved on every ``actor_every``-th gradient step only (the paper's code moves
+  them once per ``utd`` critic steps; the default 1 moves them every step).
 
 The SAC family learners run it (``learner_jax`` / ``learner_mlx``): ``CRITIC_NOISE`` asks them for a
 uniform ``[num_critics]`` draw per gradient step next to ``eps_next`` (``critic_loss`` gets both).
@@ -59,6 +61,7 @@ class RLPDConfig(SACConfig):
     target_entropy_per_dim: float = -0.5
     num_critics: int = 10
     subset_size: int = 2
+    actor_every: int = 1  # critic steps per actor (and temperature) step; the paper's code: one per utd critic steps
     critic_layer_norm: bool = True
     prior_dir: str = ""  # replay store of prior data (demonstrations); "" trains on online data only (SAC + ensemble)
     prior_fraction: float = 0.5  # share of each minibatch from the prior data (0.5: symmetric sampling)
@@ -68,6 +71,8 @@ class RLPDConfig(SACConfig):
         if not 1 <= self.subset_size <= self.num_critics:
             raise ValueError(f"RLPDConfig: need 1 <= subset_size <= num_critics (got {self.subset_size}, "
                              f"{self.num_critics})")
+        if self.actor_every < 1:
+            raise ValueError(f"RLPDConfig: actor_every must be >= 1, got {self.actor_every}")
         if not 0.0 <= self.prior_fraction < 1.0:
             raise ValueError(f"RLPDConfig: prior_fraction must be in [0, 1), got {self.prior_fraction}")
 
