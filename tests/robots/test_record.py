@@ -94,3 +94,20 @@ def test_expert_device_is_the_scripted_expert():
         robot.close()
     with pytest.raises(ValueError, match="unknown teleoperation device"):
         teleop.make_device("joystick", robot.spec)
+
+
+def test_policy_state_puts_the_object_state_in_the_observation():
+    import tasks
+
+    plain = tasks.make("robot_peg_insertion", num_envs=2, seed=1)
+    task = tasks.make("robot_peg_insertion", num_envs=2, seed=1, overrides={"policy_state": True})
+    try:
+        p, o = task.robot_spec.privileged_dim, plain.spec.obs_dim
+        assert task.spec.obs_dim == o + p and task.spec.critic_obs_dim == plain.spec.critic_obs_dim + p
+        obs, critic = task.reset()
+        proprio = task.robot_spec.proprio_dim
+        # proprio, then the privileged state (as the critic sees it after the observation), then kind and identity
+        np.testing.assert_array_equal(obs[:, proprio:proprio + p], critic[:, o + p:o + 2 * p])
+    finally:
+        plain.close()
+        task.close()
