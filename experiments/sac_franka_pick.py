@@ -3,10 +3,12 @@
     python experiments/sac_franka_pick.py --robots=sim:franka_emika_panda,sim:universal_robots_ur5e \\
         --speed=20 --total_steps=3000 --logdir=runs/sac_pick
 
-Flags beside the shared ones (``--robots``, ``--speed``; robot assignment and evaluation): ``unilab_jax.robot_cli``.
-The policy sees the robot's proprioception, its kind and its place in the inventory; the critic also the
-privileged object state. A robot lost mid-run stops its worker until the robot (or another free one)
-answers again; the other workers go on, and the interrupted step writes no transition.
+Flags beside the shared ones (``--robots``, ``--speed``, ``--dense_reward``; robot assignment and evaluation):
+``unilab_jax.robot_cli``. A robot lost mid-run stops its worker until the robot (or another free one) answers
+again; the other workers go on, and the interrupted step writes no transition. The policy sees the robot's
+proprioception, its kind and its place in the inventory; the critic also the privileged object state.
+Learning shows while it trains: ``episode/success_rate`` is the success rate of the workers' recent
+(stochastic) episodes.
 """
 
 from unilab_jax.robot_cli import run_robot_experiment

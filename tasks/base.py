@@ -41,6 +41,9 @@ class TaskSpec:
     ctrl_dt: float
     reward_terms: tuple[str, ...]
     privileged_dim: int = 0  # extrinsics vector for teacher/student methods (0: none)
+    # True where an episode terminates only by succeeding (the robot tasks): episode and evaluation logs
+    # then report the terminated fraction as ``success_rate``.
+    success_on_termination: bool = False
 
 
 class StepOut(NamedTuple):
@@ -96,6 +99,15 @@ class Task(abc.ABC):
 
     def close(self) -> None:  # noqa: B027  (optional hook, not abstract)
         """Releases resources (nothing by default)."""
+
+    def render_scene(self, env: int = 0) -> tuple[Any, Any]:
+        """``(mujoco.MjModel, mujoco.MjData)`` of env ``env`` in its current state (kinematics computed), for
+        ``mujoco.Renderer`` (``unilab_jax.play``, training clips). Tasks that step a ``BatchedSim`` in
+        ``self.sim`` get it from there; a task without one overrides this or cannot be rendered."""
+        sim = getattr(self, "sim", None)
+        if sim is None:
+            raise NotImplementedError(f"task {self.spec.name!r} has no MuJoCo scene to render (no render_scene)")
+        return sim.scene(env)
 
 
 def with_reward_scales(scales: Mapping[str, float]) -> Callable[[type], type]:

@@ -51,6 +51,9 @@ class RobotTaskConfig:
     timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
     lease_s: float = 5.0
     connect_timeout_s: float = 60.0  # wait for free robots when the task is built
+    # 0: all num_envs robots must be claimed. k > 0: after connect_timeout_s go on with the robots claimed
+    # if there are at least k (num_envs shrinks to their count): evaluations on the robots that are left.
+    min_envs: int = 0
     retry_s: float = 1.0  # between attempts to reach a lost robot
 
     def __post_init__(self):
@@ -58,6 +61,8 @@ class RobotTaskConfig:
             check_address(address)
         if self.episode_length < 1:
             raise ValueError(f"episode_length must be positive, got {self.episode_length}")
+        if self.min_envs < 0:
+            raise ValueError(f"min_envs must be >= 0, got {self.min_envs}")
         if self.arm not in KINDS:
             raise ValueError(f"arm must be one of {KINDS}, got {self.arm!r}")
 
@@ -67,8 +72,6 @@ def default_config() -> RobotTaskConfig:
 
 
 class RobotTask(base.Task):
-    terminates_on_success = True  # an episode terminates only on success (evaluations report eval/success_rate)
-
     def __init__(self, config: RobotTaskConfig, num_envs: int, seed: int, task: str):
         super().__init__(config, num_envs, seed)
         self.task_name = task
@@ -94,7 +97,8 @@ class RobotTask(base.Task):
         obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids + (spec.privileged_dim if config.policy_state else 0)
         self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
                                   critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
-                                  episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS)
+                                  episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS,
+                                  success_on_termination=True)
         self.steps = np.zeros(num_envs, np.int64)
         self._last = [dict[str, np.ndarray]() for _ in range(num_envs)]
         self._threads = concurrent.futures.ThreadPoolExecutor(num_envs) if num_envs > 1 else None
@@ -141,6 +145,9 @@ class RobotTask(base.Task):
                         self.slots.append(slot)
             if len(self.robots) < self.num_envs:
                 if time.monotonic() > deadline:
+                    if self.config.min_envs and len(self.robots) >= self.config.min_envs:
+                        self.num_envs = len(self.robots)
+                        return
                     raise RuntimeError(f"{self.num_envs} robots wanted, {len(self.robots)} free within "
                                        f"{self.config.connect_timeout_s:.0f} s in {list(self.config.robots)}")
                 self._sleep(self.config.retry_s)

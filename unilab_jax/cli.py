@@ -48,6 +48,8 @@ flags.DEFINE_bool("resume", False, "continue the run saved in --logdir")
 flags.DEFINE_integer("eval_every", 0, "env steps between deterministic evaluations (0: at the end only)")
 flags.DEFINE_integer("eval_envs", 16, "environments in each evaluation")
 flags.DEFINE_integer("checkpoint_every", 0, "env steps between checkpoints (0: at evaluations and the end)")
+flags.DEFINE_integer("video_every", 0, "env steps between clips of an evaluation episode: mp4 under <logdir>/videos "
+                     "and a frame strip in TensorBoard (0: none; headless Linux renders through EGL)")
 flags.DEFINE_bool("serial", False, "run the workers in the learner process (debugging)")
 flags.DEFINE_string("replay_dir", "", "off-policy: persistent replay store folder (write-through to disk, reopened "
                     "by --resume; empty: shared memory only)")
@@ -96,9 +98,11 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     total = FLAGS.total_steps if FLAGS.total_steps is not None else default_total_steps
     if total < 1:
         raise FlagError(f"--total_steps must be positive, got {total}")
-    for name in ("eval_every", "checkpoint_every"):
+    for name in ("eval_every", "checkpoint_every", "video_every"):
         if getattr(FLAGS, name) < 0:
             raise FlagError(f"--{name} must be >= 0, got {getattr(FLAGS, name)}")
+    if FLAGS.video_every:
+        _check_video()
     module = algos.get(algo)
     config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(FLAGS.config))
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
@@ -138,8 +142,24 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial, replay_dir=FLAGS.replay_dir,
                     replay_disk_gb=FLAGS.replay_disk_gb, replay_hot_fraction=FLAGS.replay_hot_fraction,
                     replay_chunk_rows=FLAGS.replay_chunk_rows, replay_on_device=FLAGS.replay_on_device,
-                    utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window)
+                    utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window, video_every=FLAGS.video_every)
     return run, module, config, task_overrides
+
+
+def _check_video() -> None:
+    """``--video_every``: headless GL chosen before mujoco is imported, and a frame rendered here, before anything
+    starts (in a fresh interpreter: a failed GL setup can leave a process unusable)."""
+    from unilab_jax.robots import gl
+
+    gl.prefer_headless()
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError as e:
+        raise FlagError(f"--video_every needs imageio and imageio-ffmpeg: pip install 'unilab-jax[video]' ({e})") from e
+    reason = gl.probe(os.environ.get("MUJOCO_GL", ""))
+    if reason is not None:
+        raise FlagError(f"--video_every: MuJoCo cannot render here ({reason}); on headless Linux install libegl1 "
+                        "libegl-mesa0 libgl1-mesa-dri libopengl0 (MUJOCO_GL=egl) or libosmesa6 (MUJOCO_GL=osmesa)")
 
 
 def launch(validate: Callable[[], Any], train: Callable[[Any], None],

@@ -30,6 +30,11 @@ class MetricLogger:
             self._jsonl.write(json.dumps({"step": int(step), **clean}) + "\n")
             self._jsonl.flush()
 
+    def image(self, step: int, tag: str, image) -> None:
+        """An [H, W, 3] uint8 image in TensorBoard's images tab."""
+        with self._lock:
+            self._tb.add_image(tag, image, global_step=step, dataformats="HWC")
+
     def close(self) -> None:
         self._tb.flush()
         self._tb.close()

@@ -14,7 +14,8 @@ Flags beside the shared ones (``unilab_jax.cli``):
   ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
   Periodic evaluation (``--eval_every``) needs robots the workers leave free: ``num_workers x envs_per_worker
   + eval_envs <= robots``. Without ``--eval_every``, evaluation runs at the end on ``--eval_envs`` robots
-  (default: all), once the workers have released them.
+  (default: all), once the workers have released them. An evaluation runs on the robots that answer within
+  ``EVAL_CONNECT_S`` if some are gone for good (``eval/episodes`` says how many).
 * Algorithms with prior data (RLPD): ``--demos=DIR``, a replay store of demonstrations
   (``python -m unilab_jax.robots.record``) recorded on the same inventory; without it, ``--num_demos``
   episodes of the scripted expert are recorded on the run's robots first, into ``LOGDIR/demos`` (reused by
@@ -44,6 +45,7 @@ MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), 
                        "updates_per_call": 16, "publish_every": 16, "utd": 4.0, "learning_starts": 300,
                        "replay_capacity": 200_000, "gamma": 0.95}
 STATE_TASK = {"policy_state": True}
+EVAL_CONNECT_S = 10.0  # how long an evaluation waits for robots before going on with those that answer
 
 flags.DEFINE_string("robots", "sim:franka_emika_panda", "robot inventory: comma list of sim:NAME and "
                     "tcp://HOST:PORT, or a .toml file")
@@ -137,7 +139,8 @@ def _train(validated: tuple, dense_reward: bool) -> None:
             prior_dir, demo_s = _demos(inv.addresses, run, task_overrides)
             config = dataclasses.replace(config, prior_dir=prior_dir)
         overrides = {**task_overrides, "robots": tuple(inv.addresses)}
-        summary = Trainer(run, module, config, overrides, start_time=PROCESS_START).train()
+        summary = Trainer(run, module, config, overrides, start_time=PROCESS_START,
+                          eval_overrides={"min_envs": 1, "connect_timeout_s": EVAL_CONNECT_S}).train()
     summary["robot_s"] = summary["env_steps"] / found[0].spec.control_hz + demo_s
     with open(os.path.join(run.logdir, "summary.json"), "w") as f:
         json.dump(summary, f, indent=2)

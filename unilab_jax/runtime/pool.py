@@ -639,6 +639,7 @@ class WorkerPool:
         n_ep = np.minimum(words[:, EPISODES], self._ctl["ep_return"].shape[1])
         returns = np.concatenate([self._ctl["ep_return"][i, : n_ep[i]] for i in range(self.num_workers)])
         lengths = np.concatenate([self._ctl["ep_length"][i, : n_ep[i]] for i in range(self.num_workers)])
+        terminated = np.concatenate([self._ctl["ep_terminated"][i, : n_ep[i]] for i in range(self.num_workers)])
         rows = max(term_rows - prev_rows, 1)
         terms = {name: float((term_sum[i] - prev_sum[i]) / rows) for i, name in enumerate(self.spec.reward_terms)}
         retries = int(words[:, W_RETRIES].sum())
@@ -649,6 +650,7 @@ class WorkerPool:
             "episodes": int(words[:, EPISODES].sum()),
             "episode_return_mean": float(returns.mean()) if returns.size else float("nan"),
             "episode_length_mean": float(lengths.mean()) if lengths.size else float("nan"),
+            "episode_terminated_fraction": float(terminated.mean()) if terminated.size else float("nan"),
             "recent_episode_returns": returns,
             "recent_episode_lengths": lengths,
             "reward_terms": terms,
