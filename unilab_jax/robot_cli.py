@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import signal
 import sys
 from collections.abc import Mapping
@@ -111,8 +112,11 @@ def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tu
     out = os.path.join(os.path.abspath(run.logdir), "demos")
     if os.path.isfile(os.path.join(out, "index.json")):
         return out, 0.0
-    summary = record.record(addresses, run.task, FLAGS.num_demos, out, "expert", seed=run.seed,
+    partial = out + ".partial"  # renamed into place once complete: a crash never leaves half a recording
+    shutil.rmtree(partial, ignore_errors=True)
+    summary = record.record(addresses, run.task, FLAGS.num_demos, partial, "expert", seed=run.seed,
                             overrides=task_overrides)
+    os.replace(partial, out)
     print(f"demonstrations: {summary['episodes']} episodes ({summary['successes']} successful, "
           f"{summary['transitions']} transitions, {summary['robot_seconds']:.0f} robot-s) in {out}", flush=True)
     return out, float(summary["robot_seconds"])
@@ -120,6 +124,7 @@ def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tu
 
 def _train(validated: tuple, dense_reward: bool) -> None:
     from unilab_jax.robots import inventory
+    from unilab_jax.runtime.prior import PriorDataError
     from unilab_jax.trainer import Trainer
 
     entries, (run, module, config, task_overrides) = validated
@@ -139,8 +144,13 @@ def _train(validated: tuple, dense_reward: bool) -> None:
             prior_dir, demo_s = _demos(inv.addresses, run, task_overrides)
             config = dataclasses.replace(config, prior_dir=prior_dir)
         overrides = {**task_overrides, "robots": tuple(inv.addresses)}
-        summary = Trainer(run, module, config, overrides, start_time=PROCESS_START,
-                          eval_overrides={"min_envs": 1, "connect_timeout_s": EVAL_CONNECT_S}).train()
+        trainer = Trainer(run, module, config, overrides, start_time=PROCESS_START,
+                          eval_overrides={"min_envs": 1, "connect_timeout_s": EVAL_CONNECT_S})
+        try:
+            summary = trainer.train()
+        except PriorDataError as e:  # raised before any worker starts
+            print(f"error: --demos: {e}", file=sys.stderr)
+            sys.exit(2)
     summary["robot_s"] = summary["env_steps"] / found[0].spec.control_hz + demo_s
     with open(os.path.join(run.logdir, "summary.json"), "w") as f:
         json.dump(summary, f, indent=2)
