@@ -52,6 +52,10 @@ def test_record_refuses_bad_flags(tmp_path, capsys):
              ([f"--out={tmp_path / 'a'}", "--device=spacemouse"], "no SpaceMouse driver"),
              ([f"--out={tmp_path / 'a'}", "--episodes=0"], "must be positive"),
              ([f"--out={tmp_path / 'a'}", "--robots=sim:nope"], "")]
+    try:
+        os.close(os.open("/dev/tty", os.O_RDONLY))
+    except OSError:  # no terminal (CI): the keyboard is refused before any robot starts
+        cases.append(([f"--out={tmp_path / 'a'}", "--device=keyboard"], "reads keys from the terminal"))
     for argv, message in cases:
         assert record.main(argv) == 2
         assert message in capsys.readouterr().err

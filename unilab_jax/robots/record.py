@@ -115,6 +115,13 @@ def _run(task: Any, devices: list, store: Any, episodes: int) -> dict[str, Any]:
             "steps": steps}
 
 
+def _check_terminal() -> None:
+    try:
+        os.close(os.open("/dev/tty", os.O_RDONLY))
+    except OSError as e:
+        raise ValueError(f"--device=keyboard reads keys from the terminal, and this process has none ({e})") from e
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m unilab_jax.robots.record", description=__doc__.split("::")[0])
     p.add_argument("--robots", default="sim:franka_emika_panda", help="inventory: comma list or .toml file")
@@ -137,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--device={args.device}: choose one of {teleop.DEVICES}")
         if args.device == "spacemouse":
             teleop.make_device("spacemouse", None)
+        if args.device == "keyboard":
+            _check_terminal()
         if not args.speed > 0 or args.speed == float("inf"):
             raise ValueError(f"--speed must be positive and finite, got {args.speed}")
         if args.episodes < 1:
