@@ -178,9 +178,16 @@ def names() -> list[str]:
     return sorted(_REGISTRY)
 
 
+GYM_PREFIX = "gym:"  # ``gym:ENV_ID``: a Gymnasium environment (tasks/gym_env.py), resolved by name
+
+
 def _entry(name: str) -> _Entry:
+    if name.startswith(GYM_PREFIX) and name not in _REGISTRY:
+        env_id = name[len(GYM_PREFIX):]
+        return _Entry(_ByName("tasks.gym_env:make", env_id), _ByName("tasks.gym_env:default_config", env_id))
     if name not in _REGISTRY:
-        raise ValueError(f"unknown task {name!r}; registered tasks: {names()}")
+        raise ValueError(f"unknown task {name!r}; registered tasks: {names()} (or gym:ENV_ID for a Gymnasium "
+                         "environment)")
     return _REGISTRY[name]
 
 

@@ -46,6 +46,8 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     ("--config=learning_rat=1", "unknown config key"),
     ("--task_config=no_such_key=1", "unknown config key"),
     ("--task=mars_rover", "registered tasks"),
+    ("--task=gym:CartPole-v1", "action space Discrete(2) is not a Box"),
+    ("--task=gym:NoSuchEnv-v0", "cannot be made"),
     ("--total_steps=-5", "--total_steps must be positive"),
     ("--utd_window=-1", "--utd_window must be >= 0"),
     ("--utd_window=4096", "--utd_window needs an off-policy algorithm"),

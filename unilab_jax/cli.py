@@ -3,7 +3,8 @@
 An experiment is a few lines::
 
     from unilab_jax.cli import run_experiment
-    run_experiment(algo="ppo", task="go1_joystick_flat", recipe={"horizon": 24}, flag_defaults={...})
+    run_experiment(algo="ppo", task="go1_joystick_flat", recipe={"horizon": 24},
+                   sized_for=SizedFor("16-core H100 host", 16, 64))
 
 Generic overrides: ``--config key=value`` (algorithm hyperparameters) and ``--task_config key=value``
 (task parameters), repeatable; unknown keys are rejected with the list of valid ones.
@@ -21,6 +22,8 @@ from typing import Any
 from absl import app, flags
 from absl import logging as absl_logging
 
+from unilab_jax import sizing
+
 # The learner's numpy work is small (statistics, evaluation); OpenBLAS threads spinning on it would
 # steal cores from the rollout workers. Set before numpy is first imported (nothing above imports it);
 # the user's own value wins.
@@ -36,11 +39,30 @@ if "xla_gpu_enable_triton_gemm" not in os.environ.get("XLA_FLAGS", ""):
 PLATFORMS = ("jax", "mlx")
 PROCESS_START = time.time()  # time-to-target clocks count from here (imports of jax etc. included)
 
+# What a recipe without its own sizing was tuned on: the flag defaults, 2 workers x 32 envs.
+DEV_VM = sizing.SizedFor("the 2-core dev VM", 2, 32)
+
+
+class _CountOrAuto(flags.ArgumentParser):
+    """An integer or ``auto`` (unilab_jax/sizing.py); anything else fails flag parsing."""
+
+    syntactic_help = "an integer or 'auto'"
+
+    def parse(self, argument: str | int) -> int | str:
+        return sizing.parse_count(argument)
+
+    def flag_type(self) -> str:
+        return "int or auto"
+
+
 FLAGS = flags.FLAGS
 flags.DEFINE_string("platform", "jax", f"learner platform, one of {PLATFORMS}")
-flags.DEFINE_string("task", None, "registered task name (default: the experiment's task)")
-flags.DEFINE_integer("num_workers", 2, "rollout worker processes")
-flags.DEFINE_integer("envs_per_worker", 32, "MuJoCo environments stepped by each worker")
+flags.DEFINE_string("task", None, "registered task name, or gym:ENV_ID for a Gymnasium environment with Box spaces "
+                    "(default: the experiment's task)")
+flags.DEFINE(_CountOrAuto(), "num_workers", DEV_VM.num_workers, "rollout worker processes; auto: the cores the "
+             "learner does not need (the default of recipes sized for a machine)")
+flags.DEFINE(_CountOrAuto(), "envs_per_worker", DEV_VM.envs_per_worker, "MuJoCo environments stepped by each "
+             "worker; auto (the default with --num_workers=auto): the recipe's environments split over the workers")
 flags.DEFINE_integer("total_steps", None, "environment steps to train for (default: the experiment's)")
 flags.DEFINE_integer("seed", 0, "random seed")
 flags.DEFINE_string("logdir", None, "where TensorBoard events, metrics.jsonl and checkpoints go")
@@ -71,9 +93,40 @@ class FlagError(ValueError):
     """A bad flag value, reported before anything starts."""
 
 
+def _learner_on_cpu(platform: str) -> bool:
+    if platform == "jax":
+        import jax
+
+        return jax.default_backend() == "cpu"
+    import mlx.core as mx
+
+    return mx.default_device().type == mx.cpu
+
+
+def size_for_machine(sized_for: sizing.SizedFor | None) -> None:
+    """Resolves ``auto`` in --num_workers / --envs_per_worker (integers in FLAGS afterwards) and prints the
+    choice. --envs_per_worker left at its default is auto when --num_workers is."""
+    auto_workers = FLAGS.num_workers == sizing.AUTO
+    auto_envs = FLAGS.envs_per_worker == sizing.AUTO or (auto_workers and not FLAGS["envs_per_worker"].present)
+    if not (auto_workers or auto_envs):
+        return
+    cores, recipe = sizing.available_cores(), sized_for or DEV_VM
+    if auto_workers:
+        FLAGS.num_workers = sizing.auto_num_workers(cores, _learner_on_cpu(FLAGS.platform))
+    if FLAGS.num_workers < 1:
+        raise FlagError(f"--num_workers must be at least 1, got {FLAGS.num_workers}")
+    if auto_envs:
+        FLAGS.envs_per_worker = sizing.auto_envs_per_worker(recipe.total_envs, FLAGS.num_workers)
+    workers = f"{FLAGS.num_workers} worker{'s' if FLAGS.num_workers != 1 else ''}"
+    print(f"sized for this machine: {workers} x {FLAGS.envs_per_worker} envs ({cores} cores; the recipe was sized "
+          f"for {recipe})", flush=True)
+
+
 def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
-              default_total_steps: int) -> tuple[Any, Any, Any, dict[str, Any]]:
-    """Validates every flag; returns (RunConfig, algorithm module, algorithm config, task overrides)."""
+              default_total_steps: int,
+              sized_for: sizing.SizedFor | None = None) -> tuple[Any, Any, Any, dict[str, Any]]:
+    """Validates every flag; returns (RunConfig, algorithm module, algorithm config, task overrides).
+    ``sized_for``: what the recipe was tuned on (``auto`` sizing splits its environments; default DEV_VM)."""
     import tasks
     from unilab_jax import algos
     from unilab_jax.config import apply_overrides, parse_overrides
@@ -90,8 +143,11 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError(f"--platform={FLAGS.platform}: its packages are not installed ({e}); "
                         f"pip install 'unilab-jax[{FLAGS.platform}]'") from e
     task_name = FLAGS.task or task
-    if task_name not in tasks.names():
-        raise FlagError(f"--task={task_name!r}: registered tasks are {tasks.names()}")
+    try:
+        tasks.default_config(task_name)  # unknown names; a gym:ENV_ID that cannot be made or driven
+    except ValueError as e:
+        raise FlagError(f"--task={task_name!r}: {e}") from e
+    size_for_machine(sized_for)
     for name in ("num_workers", "envs_per_worker", "eval_envs"):
         if getattr(FLAGS, name) < 1:
             raise FlagError(f"--{name} must be at least 1, got {getattr(FLAGS, name)}")
@@ -192,8 +248,10 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
 
 
 def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None,
-                   task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000) -> None:
-    """Parses the shared flags, validates them, trains, prints the summary."""
+                   task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000,
+                   sized_for: sizing.SizedFor | None = None) -> None:
+    """Parses the shared flags, validates them, trains, prints the summary. A recipe that gives ``sized_for``
+    (what it was tuned on) defaults to ``--num_workers=auto``; one that does not, to DEV_VM's 2 x 32."""
 
     def train(parts: tuple) -> None:
         from unilab_jax.trainer import Trainer
@@ -203,4 +261,6 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
         print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
         print(f"checkpoints: {summary['checkpoints']}")
 
-    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps), train)
+    if sized_for is not None:
+        FLAGS.set_default("num_workers", sizing.AUTO)
+    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps, sized_for), train)

@@ -35,6 +35,15 @@ from unilab_jax.runtime.ring import StopRequested  # noqa: E402
 log = logging.getLogger(__name__)
 
 
+def _moves_freely(model: Any, body: int) -> bool:
+    """A floating base (free joint) or a planar root (two or more slide joints, e.g. Gymnasium's HalfCheetah
+    and Hopper): the camera follows it. One slider (cart-pole's rail) keeps the whole model in view."""
+    import mujoco
+
+    types = model.jnt_type[model.jnt_bodyid == body]
+    return bool((types == mujoco.mjtJoint.mjJNT_FREE).any() or (types == mujoco.mjtJoint.mjJNT_SLIDE).sum() >= 2)
+
+
 class SceneRenderer:
     """Renders env ``env`` of a task through its ``render_scene`` hook, with a camera that follows a floating
     base (locomotion) or frames the whole model (fixed-base tasks such as cart-pole)."""
@@ -64,8 +73,11 @@ class SceneRenderer:
         # Where the stripped meshes were a body's only geoms (G1), its equivalent inertia box stands in.
         bare = np.setdiff1d(np.flatnonzero(model.body_mass > 0), model.geom_bodyid)
         self.option.flags[mujoco.mjtVisFlag.mjVIS_INERTIA] = bare.size > 0
+        if model.nlight == 0:  # models without lights (cart-pole) are lit by a brighter headlight
+            model.vis.headlight.ambient[:] = np.maximum(model.vis.headlight.ambient, 0.4)
+            model.vis.headlight.diffuse[:] = np.maximum(model.vis.headlight.diffuse, 0.8)
         self.camera = mujoco.MjvCamera()
-        if model.njnt and model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE:
+        if model.njnt and _moves_freely(model, int(model.jnt_bodyid[0])):
             self.camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
             self.camera.trackbodyid = int(model.jnt_bodyid[0])
             self.camera.distance = max(1.5, 2.0 * model.stat.extent)

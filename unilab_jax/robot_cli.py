@@ -10,8 +10,8 @@ Flags beside the shared ones (``unilab_jax.cli``):
   started here as local robot servers (``--speed`` times real time, no cameras; stopped at exit; dense reward
   or success only: ``--dense_reward``, default the experiment's),
   ``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and health first.
-* Assignment: one robot per rollout worker (``--num_workers`` defaults to the number of robots, less the
-  ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
+* Assignment: one robot per rollout worker (``--num_workers`` defaults to, and ``auto`` is, the number of robots,
+  less the ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
   Periodic evaluation (``--eval_every``) needs robots the workers leave free: ``num_workers x envs_per_worker
   + eval_envs <= robots``. Without ``--eval_every``, evaluation runs at the end on ``--eval_envs`` robots
   (default: all), once the workers have released them. An evaluation runs on the robots that answer within
@@ -72,9 +72,10 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     periodic = FLAGS.eval_every > 0
     if not FLAGS["eval_envs"].present:
         FLAGS.eval_envs = 1 if periodic else n
-    if not FLAGS["envs_per_worker"].present:
+    # machine-sized here (also for ``auto``): one worker per training robot
+    if not FLAGS["envs_per_worker"].present or FLAGS.envs_per_worker == "auto":
         FLAGS.envs_per_worker = 1
-    if not FLAGS["num_workers"].present:
+    if not FLAGS["num_workers"].present or FLAGS.num_workers == "auto":
         FLAGS.num_workers = max(n - FLAGS.eval_envs, 1) if periodic else n
     training = FLAGS.num_workers * FLAGS.envs_per_worker
     if training > n:
