@@ -6,8 +6,9 @@ order, so workers of one run given the same inventory share it out among themsel
 exclusive; ``connect_timeout_s`` bounds the wait for free robots). Without ``robots`` the environments
 are in-process simulated robots (``arm``, unpaced, no cameras): for tests and the task contract.
 
-Observation (state-based): the robot's ``proprio`` [13], a one-hot of its kind (``KINDS``) and a one-hot of
-its place in the inventory (the robot's identity; one slot without an inventory). Critic observation:
+Observation (state-based): the robot's ``proprio`` [13], (with ``policy_state``) its ``privileged`` state,
+a one-hot of its kind (``KINDS``) and a one-hot of its place in the inventory (the robot's identity; one
+slot without an inventory). Critic observation:
 the observation, the robot's privileged state and the episode time ``t / episode_length``.
 Reward: the robot's (one term, ``task``). An episode ends when the robot says so (success: terminated;
 its time limit: truncated) or after ``episode_length`` steps (truncated).
@@ -44,6 +45,9 @@ class RobotTaskConfig:
     arm: str = "franka"  # in-process robots only
     episode_length: int = 100  # control steps before truncation (at most the robot's own limit)
     dense_reward: bool = True  # in-process robots only (servers choose theirs: --dense_reward)
+    # The policy also sees the robot's privileged state (object poses): a state-based stand-in for cameras,
+    # simulated robots only (a physical robot sends no privileged state).
+    policy_state: bool = False
     timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
     lease_s: float = 5.0
     connect_timeout_s: float = 60.0  # wait for free robots when the task is built
@@ -90,7 +94,7 @@ class RobotTask(base.Task):
         self.robot_spec = spec
         self.n_ids = max(len(config.robots), 1)
         self.length = min(config.episode_length, spec.episode_length)
-        obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids
+        obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids + (spec.privileged_dim if config.policy_state else 0)
         self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
                                   critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
                                   episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS,
@@ -186,7 +190,8 @@ class RobotTask(base.Task):
         kind[KINDS.index(self.robots[i].spec.kind)] = 1.0
         ident = np.zeros(self.n_ids, np.float32)
         ident[self.slots[i]] = 1.0
-        obs = np.concatenate([robot_obs["proprio"].astype(np.float32), kind, ident])
+        state = [robot_obs["privileged"].astype(np.float32)] if self.config.policy_state else []
+        obs = np.concatenate([robot_obs["proprio"].astype(np.float32), *state, kind, ident])
         t = np.array([self.steps[i] / self.length], np.float32)
         return obs, np.concatenate([obs, robot_obs["privileged"].astype(np.float32), t])
 

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from unilab_jax import algos, nets
+from unilab_jax.core import rlpd
 from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
@@ -209,6 +210,19 @@ class Trainer:
                         else "chunks were lost or the directory changed")
         return store
 
+    def _load_prior(self) -> dict[str, np.ndarray] | None:
+        """The prior data of ``config.prior_dir`` (RLPD's symmetric sampling; None when the algorithm has none)."""
+        directory = getattr(self.config, "prior_dir", "")
+        if not directory:
+            return None
+        from unilab_jax.runtime.buffers import transition_layout
+        from unilab_jax.runtime.prior import load_prior
+
+        fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
+        prior = load_prior(directory, {k: fields[k] for k in REPLAY_FIELDS})
+        log.info("prior data: %d transitions from %s", len(prior["reward"]), directory)
+        return prior
+
     # -- evaluation ------------------------------------------------------------------------------
     def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
         """Deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the
@@ -248,6 +262,7 @@ class Trainer:
         hold_window = self._hold_window(cfg) if replay else None
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
         store = self._open_replay_store() if replay else None
+        prior = self._load_prior() if replay else None
         pool_kwargs = dict(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
                            envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
                            algo_module=self.algo.__name__, weight_template=weights,
@@ -278,7 +293,7 @@ class Trainer:
             # limit is in place before any env step.
             source = (_ReplaySource(pool, self.batch_xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
                                     self._resumed_meta.get("replay"), self._device_replay(pool),
-                                    total_steps=run.total_steps, hold_window=hold_window)
+                                    total_steps=run.total_steps, hold_window=hold_window, prior=prior)
                       if replay else _TrajectorySource(pool, self.batch_xp, self.spec.reward_terms))
             pool.publish(weights, counters["version"])
             prefetch = _Prefetcher(source.produce, inline=run.serial)
@@ -660,6 +675,9 @@ class _ReplaySource:
       everything received so far (the store's cursor goes into its record). After ``--resume`` the
       rings start empty and the disk tier alone can start learning at once, where the bookkeeping
       left off. Without a store, a resumed run warms up again and counts the ratio afresh.
+    * With prior data (``prior``, from an algorithm's ``prior_dir``: RLPD), every minibatch is composed
+      of online rows drawn as above and ``prior_fraction`` of rows drawn uniformly from the prior data
+      (``core.rlpd.compose``; symmetric sampling at 0.5). The warm-up and the ratio count online data only.
     """
 
     _TICK_S = 0.25  # seconds between no-op items while the ring warms up
@@ -668,8 +686,12 @@ class _ReplaySource:
 
     def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int, store: Any = None,
                  hot_fraction: float = 0.5, saved: dict[str, Any] | None = None, mirror: Any = None, *,
-                 total_steps: int, hold_window: int | None = None):
+                 total_steps: int, hold_window: int | None = None, prior: dict[str, np.ndarray] | None = None):
         self._pool, self._xp, self._cfg, self._mirror = pool, xp, cfg, mirror
+        # Prior data (RLPD): each minibatch is (online, prior) rows as core.rlpd.symmetric_split says.
+        self._prior = prior
+        self._rows = (rlpd.symmetric_split(cfg.batch_size, cfg.prior_fraction) if prior is not None
+                      else (cfg.batch_size, 0))
         self._seed = seed % 2**32
         self._steps0 = counters["env_steps"]  # env steps before this process (resume)
         self._budget = max(int(total_steps) - self._steps0, 0)  # pool env steps this process may take
@@ -724,7 +746,7 @@ class _ReplaySource:
 
     def produce(self, stop: threading.Event) -> tuple[dict, dict] | None:
         cfg, pool = self._cfg, self._pool
-        u, b = cfg.updates_per_call, cfg.batch_size
+        u, (b, b_prior) = cfg.updates_per_call, self._rows
         noop = {}, {"scalars": {}, "episodes": 0, "noop": True}
         if not self._warm:
             t_end = time.monotonic() + self._TICK_S
@@ -768,6 +790,11 @@ class _ReplaySource:
                     self._spiller.spill()
                     batch = self._tiers.sample(u, b, rng)
                 out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in REPLAY_FIELDS}
+            if b_prior:
+                idx = rng.integers(0, len(self._prior["reward"]), size=u * b_prior)
+                out = rlpd.compose(out, {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))
+                                         for k, v in self._prior.items()})
+                scalars["perf/prior_rows"] = float(b_prior)
         self._grad_steps += u
         self._produced += 1
         scalars.update({"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1})

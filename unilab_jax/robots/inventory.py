@@ -139,10 +139,11 @@ class LocalServer:
 
 class Inventory:
     """Starts the local servers of ``entries`` (``with Inventory(...) as inv: inv.addresses``); stops them
-    on exit, also when starting one of them fails."""
+    on exit, also when starting one of them fails (``dense_reward``: the servers' reward, else success only)."""
 
-    def __init__(self, entries: list[RobotEntry], task: str, speed: float, seed: int = 0):
+    def __init__(self, entries: list[RobotEntry], task: str, speed: float, seed: int = 0, dense_reward: bool = True):
         self.entries, self.task, self.speed, self.seed = entries, task, speed, seed
+        self.extra = ("--dense_reward",) if dense_reward else ()
         self.servers: list[LocalServer] = []
         self.addresses: list[str] = []
 
@@ -150,7 +151,8 @@ class Inventory:
         try:
             for i, e in enumerate(self.entries):
                 if e.sim:
-                    self.servers.append(LocalServer(SIM_ROBOTS[e.sim], self.task, self.speed, seed=self.seed + i))
+                    self.servers.append(LocalServer(SIM_ROBOTS[e.sim], self.task, self.speed, seed=self.seed + i,
+                                                    extra=self.extra))
                     self.addresses.append(self.servers[-1].address)
                 else:
                     self.addresses.append(e.address)
