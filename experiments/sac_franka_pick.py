@@ -3,90 +3,19 @@
     python experiments/sac_franka_pick.py --robots=sim:franka_emika_panda,sim:universal_robots_ur5e \\
         --speed=20 --total_steps=3000 --logdir=runs/sac_pick
 
-``--robots``: a comma list or a ``.toml`` inventory (``unilab_jax.robots.inventory``): ``sim:NAME`` robots are
-started here as local robot servers (``--speed`` times real time, dense reward, no cameras; stopped at exit),
-``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and health first.
-Assignment: one robot per rollout worker (``--num_workers`` defaults to the number of robots,
-``--envs_per_worker`` to 1); each worker claims the first free robot of the inventory. A robot lost
-mid-run stops its worker until the robot (or another free one) answers again; the other workers go on,
-and the interrupted step writes no transition. The policy sees the robot's proprioception, its kind
-and its place in the inventory; the critic also the privileged object state. Evaluation runs at the
-end only, on ``--eval_envs`` (default: all) robots, once the workers have released them.
+Flags beside the shared ones (``--robots``, ``--speed``, ``--dense_reward``; robot assignment and evaluation):
+``unilab_jax.robot_cli``. A robot lost mid-run stops its worker until the robot (or another free one) answers
+again; the other workers go on, and the interrupted step writes no transition. The policy sees the robot's
+proprioception, its kind and its place in the inventory; the critic also the privileged object state.
+Learning shows while it trains: ``episode/success_rate`` is the success rate of the workers' recent
+(stochastic) episodes.
 """
 
-import signal
-import sys
-
-from absl import flags
-
-from unilab_jax.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
-
-flags.DEFINE_string("robots", "sim:franka_emika_panda", "robot inventory: comma list of sim:NAME and "
-                    "tcp://HOST:PORT, or a .toml file")
-flags.DEFINE_float("speed", 20.0, "wall-clock speed-up of the sim: robots this run starts")
+from unilab_jax.robot_cli import run_robot_experiment
 
 RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 128, "updates_per_call": 8,
           "publish_every": 8, "utd": 0.5, "learning_starts": 500, "replay_capacity": 200_000,
           "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3, "gamma": 0.95}
 
-
-def validate():
-    from unilab_jax.robots import inventory
-
-    try:
-        entries = inventory.parse(FLAGS.robots)
-    except inventory.InventoryError as e:
-        raise FlagError(f"--robots: {e}") from e
-    if not FLAGS.speed > 0 or FLAGS.speed == float("inf"):
-        raise FlagError(f"--speed must be positive and finite, got {FLAGS.speed}")
-    n = len(entries)
-    for name, value in (("num_workers", n), ("envs_per_worker", 1), ("eval_envs", n)):
-        if not FLAGS[name].present:
-            setattr(FLAGS, name, value)
-    if FLAGS.num_workers * FLAGS.envs_per_worker > n:
-        raise FlagError(f"--num_workers={FLAGS.num_workers} x --envs_per_worker={FLAGS.envs_per_worker} "
-                        f"robots wanted, the inventory has {n}")
-    if FLAGS.eval_envs > n:
-        raise FlagError(f"--eval_envs={FLAGS.eval_envs}: the inventory has {n} robots")
-    if FLAGS.eval_every:
-        raise FlagError("--eval_every: the workers hold every robot while training; robot runs evaluate at the end")
-    if FLAGS.serial:
-        raise FlagError("--serial: robot tasks step robot servers from worker processes")
-    run, module, config, task_overrides = build_run("sac", "robot_pick_place", RECIPE, {}, 50_000)
-    if not run.task.startswith("robot_"):
-        raise FlagError(f"--task={run.task}: this experiment drives robots (robot_pick_place, robot_peg_insertion)")
-    if "robots" in task_overrides:
-        raise FlagError("--task_config=robots=...: give the robots with --robots")
-    return entries, (run, module, config, task_overrides)
-
-
-def train(validated) -> None:
-    import json
-
-    from unilab_jax.robots import inventory
-    from unilab_jax.trainer import Trainer
-
-    entries, (run, module, config, task_overrides) = validated
-    robot_task = run.task.removeprefix("robot_")
-    with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed) as inv:
-        try:
-            found = inventory.discover(inv.addresses, task=robot_task)
-        except inventory.InventoryError as e:
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(2)
-        for robot in found:
-            print(f"robot {robot.address}: {robot.spec.name} ({robot.spec.kind}, {robot.spec.control_hz:g} Hz x "
-                  f"{robot.spec.speed:g}), health {robot.health.state}", flush=True)
-        overrides = {**task_overrides, "robots": tuple(inv.addresses)}
-        summary = Trainer(run, module, config, overrides, start_time=PROCESS_START).train()
-    print(json.dumps(summary, indent=2))
-    print(f"logs: {summary['logdir']}  checkpoints: {summary['checkpoints']}")
-
-
-def _terminate(signum, frame):
-    raise KeyboardInterrupt  # unwinds through Inventory, which stops the servers this run started
-
-
 if __name__ == "__main__":
-    signal.signal(signal.SIGTERM, _terminate)
-    launch(validate, train)
+    run_robot_experiment("sac", "robot_pick_place", RECIPE, default_total_steps=50_000)

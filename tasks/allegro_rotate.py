@@ -49,10 +49,10 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   them PPO settles on a still hand; README "In-hand rotation (Allegro)").
 * Termination (fall): object centre below the palm surface or more than 0.09 m (horizontally) from the
   palm centre. Time limit 400 steps (truncation).
-* Evaluation metrics (``RotationTracker``, the trainer's ``eval/*``): ``rotation_rate`` (mean object
-  angular velocity about z over the alive steps of each env's first episode, rad/s, unclipped) and
-  ``time_to_fall`` (mean fraction of the episode before a fall; 1 without one), plus ``rotate_reward``
-  (mean per-step rotation reward term).
+* Evaluation metrics (``eval_tracker()`` -> ``RotationTracker``, the trainer's ``eval/*``):
+  ``rotation_rate`` (mean object angular velocity about z over the alive steps of each env's first
+  episode, rad/s, unclipped) and ``time_to_fall`` (mean fraction of the episode before a fall; 1 without
+  one), plus ``rotate_reward`` (mean per-step rotation reward term).
 
 The observation/reward math is module-level functions written against the shim (``step_math``,
 ``observe``, ``reward_terms``, ``object_fields``), which ``tasks/mjx_allegro.py`` runs on jax arrays.
@@ -358,12 +358,16 @@ def yaw_quat(yaw):
 # The numpy task
 # --------------------------------------------------------------------------------------------------
 class RotationTracker:
-    """The evaluation metrics over each env's first episode while a caller steps the task (``step(action)``
-    returns the task's StepOut): ``metrics()`` -> rotation_rate (rad/s), time_to_fall (fraction of the
-    episode before a fall, 1 without one), rotate_reward (mean per-step rotation term)."""
+    """The evaluation metric over each env's first episode while a caller steps the task (``step`` /
+    ``result`` like ``walking.WalkingTracker``): ``rotation_rate`` (rad/s, mean object yaw rate over the
+    episode's steps), ``time_to_fall`` (fraction of the episode before a fall, 1 without one),
+    ``rotate_reward`` (mean per-step rotation term). ``stepper``: what ``step`` steps (the task, or a
+    ``<task>_hist`` variant wrapping it); the metric's inputs are read from ``task``."""
 
-    def __init__(self, task):
-        self._task = task
+    LOGGED = ("rotation_rate", "time_to_fall", "rotate_reward")
+
+    def __init__(self, task, stepper=None):
+        self._task, self._stepper = task, stepper if stepper is not None else task
         m = task.num_envs
         self.active = np.ones(m, dtype=bool)
         self._steps = np.zeros(m)
@@ -371,8 +375,12 @@ class RotationTracker:
         self._angvel = np.zeros(m)
         self._rotate = np.zeros(m)
 
+    @property
+    def done(self) -> bool:
+        return not self.active.any()
+
     def step(self, action: np.ndarray) -> base.StepOut:
-        out = self._task.step(action)
+        out = self._stepper.step(action)
         a = self.active
         self._steps += a
         self._angvel += np.where(a, self._task.object_angvel_z, 0.0)
@@ -381,7 +389,7 @@ class RotationTracker:
         self.active = a & ~(out.terminated | out.truncated)
         return out
 
-    def metrics(self) -> dict[str, float]:
+    def result(self) -> dict[str, float]:
         steps = np.maximum(self._steps, 1)
         limit = self._task.spec.episode_length
         ttf = np.where(np.isnan(self._fall_at), 1.0, np.nan_to_num(self._fall_at) / limit)
@@ -390,8 +398,6 @@ class RotationTracker:
 
 
 class AllegroRotate(base.Task):
-    eval_tracker = RotationTracker
-
     def __init__(self, config: AllegroRotateConfig, num_envs: int, seed: int):
         super().__init__(config, num_envs, seed)
         c = config
@@ -525,6 +531,10 @@ class AllegroRotate(base.Task):
     def _reset_and_observe(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         self._reset_envs(idx)
         return self._observe()
+
+    def eval_tracker(self, stepper=None) -> RotationTracker:
+        """The evaluation metric's tracker (``play.run_episodes``); ``stepper``: a variant wrapping this task."""
+        return RotationTracker(self, stepper)
 
     def close(self) -> None:
         self.sim.close()

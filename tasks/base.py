@@ -41,6 +41,9 @@ class TaskSpec:
     ctrl_dt: float
     reward_terms: tuple[str, ...]
     privileged_dim: int = 0  # extrinsics vector for teacher/student methods (0: none)
+    # True where an episode terminates only by succeeding (the robot tasks): episode and evaluation logs
+    # then report the terminated fraction as ``success_rate``.
+    success_on_termination: bool = False
 
 
 class StepOut(NamedTuple):
@@ -97,6 +100,15 @@ class Task(abc.ABC):
     def close(self) -> None:  # noqa: B027  (optional hook, not abstract)
         """Releases resources (nothing by default)."""
 
+    def render_scene(self, env: int = 0) -> tuple[Any, Any]:
+        """``(mujoco.MjModel, mujoco.MjData)`` of env ``env`` in its current state (kinematics computed), for
+        ``mujoco.Renderer`` (``unilab_jax.play``, training clips). Tasks that step a ``BatchedSim`` in
+        ``self.sim`` get it from there; a task without one overrides this or cannot be rendered."""
+        sim = getattr(self, "sim", None)
+        if sim is None:
+            raise NotImplementedError(f"task {self.spec.name!r} has no MuJoCo scene to render (no render_scene)")
+        return sim.scene(env)
+
 
 def with_reward_scales(scales: Mapping[str, float]) -> Callable[[type], type]:
     """Class decorator for a frozen task config: a float field ``scale_<term>`` per reward term of ``scales``
@@ -151,6 +163,7 @@ _REGISTRY: dict[str, _Entry] = {
     "go2_joystick_flat": _builtin("tasks.go2_joystick"),
     "g1_walk_flat": _builtin("tasks.g1_walk"),
     "allegro_rotate": _builtin("tasks.allegro_rotate"),
+    "g1_track": _builtin("tasks.g1_track"),
     "robot_pick_place": _Entry(_ByName("tasks.robot:make", "pick_place"), _ByName("tasks.robot:default_config")),
     "robot_peg_insertion": _Entry(_ByName("tasks.robot:make", "peg_insertion"),
                                   _ByName("tasks.robot:default_config")),
@@ -168,9 +181,16 @@ def names() -> list[str]:
     return sorted(_REGISTRY)
 
 
+GYM_PREFIX = "gym:"  # ``gym:ENV_ID``: a Gymnasium environment (tasks/gym_env.py), resolved by name
+
+
 def _entry(name: str) -> _Entry:
+    if name.startswith(GYM_PREFIX) and name not in _REGISTRY:
+        env_id = name[len(GYM_PREFIX):]
+        return _Entry(_ByName("tasks.gym_env:make", env_id), _ByName("tasks.gym_env:default_config", env_id))
     if name not in _REGISTRY:
-        raise ValueError(f"unknown task {name!r}; registered tasks: {names()}")
+        raise ValueError(f"unknown task {name!r}; registered tasks: {names()} (or gym:ENV_ID for a Gymnasium "
+                         "environment)")
     return _REGISTRY[name]
 
 

@@ -86,10 +86,9 @@ def joint_group(name: str) -> str:
     return "wrist" if ("wrist_pitch" in name or "wrist_yaw" in name) else "arm"
 
 
-@base.with_reward_scales(REWARD_SCALES)
 @dataclasses.dataclass(frozen=True)
-class G1WalkConfig(walking.WalkingConfig):
-    """Configuration of ``g1_walk_flat`` (override any field by name)."""
+class G1Config(walking.WalkingConfig):
+    """The G1 model, servo gains and domain randomisation of the G1 tasks, and ``g1_walk_flat``'s walking fields."""
 
     sim_dt: float = 0.005
     action_scale: float = 0.5
@@ -135,11 +134,17 @@ class G1WalkConfig(walking.WalkingConfig):
     dr_torso_com: float = 0.03
 
 
+@base.with_reward_scales(REWARD_SCALES)
+@dataclasses.dataclass(frozen=True)
+class G1WalkConfig(G1Config):
+    """Configuration of ``g1_walk_flat`` (override any field by name)."""
+
+
 def default_config() -> G1WalkConfig:
     return G1WalkConfig()
 
 
-def build_spec(config: G1WalkConfig) -> mujoco.MjSpec:
+def build_spec(config: G1Config) -> mujoco.MjSpec:
     """Unitree's G1 scene with the task's MjSpec edits (solver, feet-only contacts, servos, sensors)."""
     spec, feet = walking.robot_spec("unitree_g1", config, lambda spec: [
         g for b in FOOT_BODIES for g in spec.body(b).geoms if g.type == mujoco.mjtGeom.mjGEOM_SPHERE])
@@ -162,7 +167,7 @@ def build_spec(config: G1WalkConfig) -> mujoco.MjSpec:
     return spec
 
 
-def pose_weights(config: G1WalkConfig, joint_names) -> np.ndarray:
+def pose_weights(config: G1Config, joint_names) -> np.ndarray:
     c = config
 
     def weight(name: str) -> float:

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 from typing import Any
 
 import numpy as np
@@ -99,6 +100,19 @@ class HistoryTask(base.Task):
         if attr == "inner":
             raise AttributeError(attr)
         return getattr(self.inner, attr)
+
+    def render_scene(self, env: int = 0) -> tuple[Any, Any]:
+        return self.inner.render_scene(env)
+
+    @property
+    def eval_tracker(self):
+        """The wrapped task's ``eval_tracker`` with this variant as its ``stepper`` (so evaluation steps the
+        variant and sees the history observation); absent when the wrapped task has none, or one that takes
+        no ``stepper``."""
+        make = self.inner.eval_tracker
+        if "stepper" not in inspect.signature(make).parameters:
+            raise AttributeError("eval_tracker")
+        return functools.partial(make, stepper=self)
 
     def _pack(self, frames: np.ndarray, critic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         flat = frames.reshape(self.num_envs, -1)

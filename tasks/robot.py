@@ -6,8 +6,9 @@ order, so workers of one run given the same inventory share it out among themsel
 exclusive; ``connect_timeout_s`` bounds the wait for free robots). Without ``robots`` the environments
 are in-process simulated robots (``arm``, unpaced, no cameras): for tests and the task contract.
 
-Observation (state-based): the robot's ``proprio`` [13], a one-hot of its kind (``KINDS``) and a one-hot of
-its place in the inventory (the robot's identity; one slot without an inventory). Critic observation:
+Observation (state-based): the robot's ``proprio`` [13], (with ``policy_state``) its ``privileged`` state,
+a one-hot of its kind (``KINDS``) and a one-hot of its place in the inventory (the robot's identity; one
+slot without an inventory). Critic observation:
 the observation, the robot's privileged state and the episode time ``t / episode_length``.
 Reward: the robot's (one term, ``task``). An episode ends when the robot says so (success: terminated;
 its time limit: truncated) or after ``episode_length`` steps (truncated).
@@ -44,9 +45,15 @@ class RobotTaskConfig:
     arm: str = "franka"  # in-process robots only
     episode_length: int = 100  # control steps before truncation (at most the robot's own limit)
     dense_reward: bool = True  # in-process robots only (servers choose theirs: --dense_reward)
+    # The policy also sees the robot's privileged state (object poses): a state-based stand-in for cameras,
+    # simulated robots only (a physical robot sends no privileged state).
+    policy_state: bool = False
     timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
     lease_s: float = 5.0
     connect_timeout_s: float = 60.0  # wait for free robots when the task is built
+    # 0: all num_envs robots must be claimed. k > 0: after connect_timeout_s go on with the robots claimed
+    # if there are at least k (num_envs shrinks to their count): evaluations on the robots that are left.
+    min_envs: int = 0
     retry_s: float = 1.0  # between attempts to reach a lost robot
 
     def __post_init__(self):
@@ -54,6 +61,8 @@ class RobotTaskConfig:
             check_address(address)
         if self.episode_length < 1:
             raise ValueError(f"episode_length must be positive, got {self.episode_length}")
+        if self.min_envs < 0:
+            raise ValueError(f"min_envs must be >= 0, got {self.min_envs}")
         if self.arm not in KINDS:
             raise ValueError(f"arm must be one of {KINDS}, got {self.arm!r}")
 
@@ -85,10 +94,11 @@ class RobotTask(base.Task):
         self.robot_spec = spec
         self.n_ids = max(len(config.robots), 1)
         self.length = min(config.episode_length, spec.episode_length)
-        obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids
+        obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids + (spec.privileged_dim if config.policy_state else 0)
         self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
                                   critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
-                                  episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS)
+                                  episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS,
+                                  success_on_termination=True)
         self.steps = np.zeros(num_envs, np.int64)
         self._last = [dict[str, np.ndarray]() for _ in range(num_envs)]
         self._threads = concurrent.futures.ThreadPoolExecutor(num_envs) if num_envs > 1 else None
@@ -135,6 +145,9 @@ class RobotTask(base.Task):
                         self.slots.append(slot)
             if len(self.robots) < self.num_envs:
                 if time.monotonic() > deadline:
+                    if self.config.min_envs and len(self.robots) >= self.config.min_envs:
+                        self.num_envs = len(self.robots)
+                        return
                     raise RuntimeError(f"{self.num_envs} robots wanted, {len(self.robots)} free within "
                                        f"{self.config.connect_timeout_s:.0f} s in {list(self.config.robots)}")
                 self._sleep(self.config.retry_s)
@@ -177,7 +190,8 @@ class RobotTask(base.Task):
         kind[KINDS.index(self.robots[i].spec.kind)] = 1.0
         ident = np.zeros(self.n_ids, np.float32)
         ident[self.slots[i]] = 1.0
-        obs = np.concatenate([robot_obs["proprio"].astype(np.float32), kind, ident])
+        state = [robot_obs["privileged"].astype(np.float32)] if self.config.policy_state else []
+        obs = np.concatenate([robot_obs["proprio"].astype(np.float32), *state, kind, ident])
         t = np.array([self.steps[i] / self.length], np.float32)
         return obs, np.concatenate([obs, robot_obs["privileged"].astype(np.float32), t])
 

@@ -570,8 +570,11 @@ class WalkingTracker:
     """Accumulates ``walking_metric``'s numbers over each env's first episode while a caller steps the task
     (the trainer's periodic evaluation uses it on the episodes it already runs).
 
-    ``step(action)`` steps the task and returns its ``StepOut``; ``result()`` gives the metric dictionary.
+    ``step(action)`` steps the task and returns its ``StepOut``; ``result()`` gives the metric dictionary, of
+    which the trainer logs the ``LOGGED`` entries.
     """
+
+    LOGGED = ("tracking_error", "yaw_rate_error", "fall_rate")
 
     def __init__(self, task: Any):
         if not is_locomotion(task):

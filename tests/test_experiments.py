@@ -33,11 +33,25 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     evals = [r for r in rows if "eval/return" in r]
     # Locomotion evaluations carry the walking metric (velocity tracking in m/s, fall rate in [0, 1]).
     assert evals and all(r["eval/tracking_error"] > 0 and 0 <= r["eval/fall_rate"] <= 1 for r in evals)
+    # ... and the walking criterion's verdict (a 40k-step policy does not walk).
+    assert all(r["eval/yaw_rate_error"] > 0 and r["eval/walking"] == 0.0 for r in evals)
     resumed = [r["step"] for r in rows[len(rows) // 2:] if "loss/policy_loss" in r]
     # The second run continues from the saved step: its first training row follows it directly.
     train_steps = [r["step"] for r in rows if "loss/policy_loss" in r]
     assert train_steps == sorted(train_steps) and len(set(train_steps)) == len(train_steps)
     assert resumed and min(s for s in train_steps if s > steps[-1]) == steps[-1] + 24 * 2 * 32
+
+
+def test_ppo_g1_track_runs_and_reports_the_tracking_metric(tmp_path):
+    # Issue criterion: ppo_g1_track.py exits 0 on a tiny budget; its evaluation plays the clips from their start.
+    logdir = str(tmp_path / "track")
+    # 2 x 32 envs (auto sizing gives 1 x 1920 here: 46k steps before the first update, 37 s, 1.5 GB; exits 0 too).
+    out = _run("ppo_g1_track.py", "--total_steps=5000", "--num_workers=2", "--envs_per_worker=32", "--eval_envs=4",
+               f"--logdir={logdir}")
+    assert out.returncode == 0, out.stderr[-3000:]
+    summary = json.load(open(os.path.join(logdir, "summary.json")))
+    assert summary["env_steps"] >= 5000 and 0.0 <= summary["eval/clip_completion"] <= 1.0
+    assert 0.0 < summary["eval/body_pos_error"] < 1.0  # metres, mean over the tracked bodies
 
 
 @pytest.mark.parametrize("flag,message", [
@@ -46,9 +60,12 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     ("--config=learning_rat=1", "unknown config key"),
     ("--task_config=no_such_key=1", "unknown config key"),
     ("--task=mars_rover", "registered tasks"),
+    ("--task=gym:CartPole-v1", "action space Discrete(2) is not a Box"),
+    ("--task=gym:NoSuchEnv-v0", "cannot be made"),
     ("--total_steps=-5", "--total_steps must be positive"),
     ("--utd_window=-1", "--utd_window must be >= 0"),
     ("--utd_window=4096", "--utd_window needs an off-policy algorithm"),
+    ("--pin_cpus=-2", "--pin_cpus must be -1 (off)"),
 ])
 def test_invalid_flags_fail_before_workers_start(tmp_path, flag, message):
     out = _run("ppo_cartpole.py", flag, f"--logdir={tmp_path / 'x'}", timeout=120)

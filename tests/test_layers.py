@@ -24,9 +24,11 @@ LAYERS = [
     # L1: kernels and utilities (no tasks, no runtime, no algorithm)
     ("unilab_jax", 1), ("unilab_jax.core", 1), ("unilab_jax.core.*", 1), ("unilab_jax.nets", 1),
     ("unilab_jax.nets_temporal", 1), ("unilab_jax.config", 1), ("unilab_jax.metrics", 1),
-    ("unilab_jax.fields", 1), ("unilab_jax.lazy", 1), ("unilab_mlx", 1), ("unilab_mlx.*", 1),
+    ("unilab_jax.fields", 1), ("unilab_jax.lazy", 1), ("unilab_jax.sizing", 1), ("unilab_mlx", 1), ("unilab_mlx.*", 1),
     # L2: tasks, the runtime (workers load the algorithm declaration by module path) and checkpoints
-    ("tasks", 2), ("tasks.*", 2), ("unilab_jax.runtime", 2), ("unilab_jax.runtime.*", 2),
+    # (runtime.ray_pool / runtime.host_rollouts: one host's pool behind pulls, and the learner's pool over Ray nodes)
+    ("tasks", 2), ("tasks.*", 2), ("unilab_jax.runtime", 2), ("unilab_jax.runtime.ray_pool", 2),
+    ("unilab_jax.runtime.host_rollouts", 2), ("unilab_jax.runtime.*", 2),
     ("unilab_jax.checkpoint", 2), ("unilab_jax.robots", 2), ("unilab_jax.robots.*", 2),
     # L4: learners (above the declarations they import)
     ("unilab_jax.algos.*.learner_*", 4), ("unilab_jax.algos.ppo.him_ppo_jax", 4),
@@ -36,7 +38,9 @@ LAYERS = [
     ("unilab_jax.algos", 5),
     # L6: trainer, command lines, MJX baseline, experiment scripts
     ("unilab_jax.trainer", 6), ("unilab_jax.cli", 6), ("unilab_jax.hora_cli", 6), ("unilab_jax.mjx_train", 6),
-    ("unilab_jax.mjx_cli", 6), ("unilab_jax.device_replay", 6), ("experiments.*", 6),
+    ("unilab_jax.mjx_cli", 6), ("unilab_jax.device_replay", 6), ("unilab_jax.sharding", 6), ("experiments.*", 6),
+    ("unilab_jax.saved_run", 6), ("unilab_jax.play", 6), ("unilab_jax.export", 6),
+    ("unilab_jax.robot_cli", 6),
 ]
 
 

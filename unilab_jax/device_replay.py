@@ -17,6 +17,12 @@ update's minibatch is one device-side gather of sampled row indices.
 Uploads are padded to a power-of-two number of rows (padding rows index past the end and are dropped)
 so the donated scatter compiles for a handful of sizes only. Memory: the rings' size once more on the
 device (2M Go1 transitions: ~2.9 GB).
+
+With a data-parallel learner (``parallel``, a :class:`~unilab_jax.sharding.DataParallel`, ``--devices`` > 1)
+the mirror is replicated on every device of the mesh (each new row is uploaded to each device; memory the
+rings' size per device) and ``gather`` returns the minibatch split along B, as the sharded update takes it:
+each device gathers its own columns from its local copy, with no traffic between devices, and the rows
+drawn are exactly those of one device for the same generator.
 """
 
 from __future__ import annotations
@@ -31,9 +37,11 @@ import numpy as np
 MIN_UPLOAD_ROWS = 1024
 
 
-@jax.jit
-def _gather(data: dict, index: jax.Array) -> dict:
+def _gather_impl(data: dict, index: jax.Array) -> dict:
     return {k: v[index] for k, v in data.items()}
+
+
+_gather = jax.jit(_gather_impl)
 
 
 def _scatter_impl(data: dict, slots: jax.Array, rows: dict) -> dict:
@@ -46,7 +54,7 @@ _scatter = jax.jit(_scatter_impl, donate_argnums=0)
 class DeviceReplay:
     """Mirror of a :class:`~unilab_jax.runtime.buffers.ReplayBuffer`'s ``fields`` on the default device."""
 
-    def __init__(self, ring: Any, fields: Iterable[str]):
+    def __init__(self, ring: Any, fields: Iterable[str], parallel: Any = None):
         self._ring = ring
         self.fields = tuple(fields)
         w, c = ring.num_workers, ring.capacity
@@ -54,6 +62,11 @@ class DeviceReplay:
         # 64-bit fields become 32-bit unless jax_enable_x64 (the learner's fields are float32 and bool).
         self.data = {f: jnp.zeros((self._rows, *ring.fields[f][0]), jax.dtypes.canonicalize_dtype(ring.fields[f][1]))
                      for f in self.fields}
+        self._scatter, self._gather = _scatter, _gather
+        if parallel is not None:
+            self.data = jax.device_put(self.data, parallel.replicated)
+            self._scatter = jax.jit(_scatter_impl, donate_argnums=0, out_shardings=parallel.replicated)
+            self._gather = jax.jit(_gather_impl, out_shardings=parallel.batch_sharding)
         self.lo = np.zeros(w, np.int64)  # per worker: global rows [lo, hi) are intact on the device
         self.hi = np.zeros(w, np.int64)  # (hi: the worker's count at the last sync)
         self.uploaded = 0  # rows copied to the device so far
@@ -77,7 +90,7 @@ class DeviceReplay:
                 pad = np.zeros((padded, *a.shape[1:]), a.dtype)
                 pad[:n] = a
                 rows[f] = pad
-            self.data = _scatter(self.data, jnp.asarray(slots), rows)
+            self.data = self._scatter(self.data, jnp.asarray(slots), rows)
             self.uploaded += n
         self.lo, self.hi = new["lo"], new["hi"]
         return n
@@ -95,4 +108,4 @@ class DeviceReplay:
 
     def gather(self, index: np.ndarray) -> dict[str, jax.Array]:
         """``{field: rows[index]}`` on the device; ``index`` of any shape (e.g. [U, B])."""
-        return _gather(self.data, jnp.asarray(index))
+        return self._gather(self.data, jnp.asarray(index))

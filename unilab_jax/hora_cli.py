@@ -60,8 +60,8 @@ def evaluate_policy(algo_module: Any, weights: dict, task: str, overrides: Mappi
     from unilab_jax.trainer import Trainer
 
     run = types.SimpleNamespace(task=task, eval_envs=num_envs)
-    probe = types.SimpleNamespace(run=run, task_overrides=dict(overrides), spec=_spec(task, overrides),
-                                  algo=algo_module)
+    probe = types.SimpleNamespace(run=run, task_overrides=dict(overrides), eval_overrides=dict(overrides),
+                                  spec=_spec(task, overrides), algo=algo_module)
     return Trainer.evaluate(probe, weights, seed)
 
 

@@ -26,7 +26,8 @@ flags.DEFINE_float("max_seconds", 0.0, "stop after this much wall time from proc
 flags.DEFINE_integer("iterations_per_call", None, "training iterations per jitted call, one logged row per call "
                      "(default: the experiment's)")
 
-RUNTIME_ONLY = ("num_workers", "envs_per_worker", "serial", "resume", "checkpoint_every", "replay_dir")
+RUNTIME_ONLY = ("num_workers", "envs_per_worker", "serial", "resume", "checkpoint_every", "replay_dir", "ray_address",
+                "ray_workers_per_host")
 
 
 def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
@@ -43,6 +44,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise cli.FlagError(f"--{given[0]} is a flag of the CPU-worker runtime; MJX runs take --num_envs")
     if FLAGS.platform != "jax":
         raise cli.FlagError(f"--platform={FLAGS.platform!r}: MJX runs need jax")
+    if FLAGS.devices != "1":
+        raise cli.FlagError(f"--devices={FLAGS.devices}: MJX runs train on one device")
     task_name = FLAGS.task or task
     if task_name not in MJX_TASKS:
         raise cli.FlagError(f"--task={task_name!r}: tasks with an MJX variant are {sorted(MJX_TASKS)}")

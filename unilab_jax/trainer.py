@@ -35,8 +35,9 @@ from typing import Any
 import numpy as np
 
 from unilab_jax import algos, nets
+from unilab_jax.core import rlpd
 from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
-from unilab_jax.metrics import MetricLogger, ProgressBar
+from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.xp import tree_leaves
 
@@ -59,6 +60,7 @@ class RunConfig:
     eval_every: int = 0  # env steps between evaluations (0: only at the end)
     eval_envs: int = 16
     checkpoint_every: int = 0  # env steps between checkpoints (0: at evaluations and at the end)
+    video_every: int = 0  # env steps between clips of an evaluation episode (unilab_jax.play.ClipRecorder; 0: none)
     serial: bool = False  # run the workers in-process (debugging, deterministic tests)
     # Persistent replay (off-policy algorithms; unilab_jax/runtime/replay_store.py): every transition is
     # also written to a crash-safe store in replay_dir, which --resume reopens.
@@ -74,6 +76,17 @@ class RunConfig:
     # run on (a learner slower than ``utd`` x the env rate then trains below the ratio). See _ReplaySource.
     utd_mode: str = "hold"
     utd_window: int = 0  # env steps the workers may run ahead of the ratio (0: four learner calls' worth)
+    # Worker CPU affinity: -1 none; K >= 0: workers pinned to the usable CPUs except the first K, which stay free
+    # for the learner process (runtime/pool.py cpu_placement).
+    pin_cpus: int = -1
+    # JAX learner: "1" (one device, the plain path), "N" or "all": data-parallel over the first N local devices
+    # (unilab_jax/sharding.py; the batch axis must divide evenly).
+    devices: str = "1"
+    # Off-policy: rollouts on every node of a Ray cluster ("auto" or HOST:PORT of its head; "" = this host only,
+    # Ray not imported). The learner's node runs num_workers workers, every other node ray_workers_per_host
+    # (0: num_workers). unilab_jax/runtime/ray_pool.py.
+    ray_address: str = ""
+    ray_workers_per_host: int = 0
 
 
 def _learner_platform(platform: str) -> Any:
@@ -91,19 +104,29 @@ def _donated(tree: Any) -> bool:
 class Trainer:
     _STOP_GRACE_S = 2.0  # after a stop, how long the loop still waits for the update in flight
     def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
-                 start_time: float | None = None):
+                 start_time: float | None = None, eval_overrides: dict[str, Any] | None = None):
         """``start_time``: wall clock that ``time/wall_s`` and ``eval/wall_s`` count from (the process
-        start when launched from the CLI, so compilation and worker start-up are included)."""
+        start when launched from the CLI, so compilation and worker start-up are included).
+        ``eval_overrides``: task overrides added for evaluations only (e.g. robot tasks evaluating on
+        the robots that answer, ``min_envs``)."""
         import tasks
 
         self.t0 = time.time() if start_time is None else start_time
 
         self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, task_overrides
+        self.eval_overrides = {**task_overrides, **(eval_overrides or {})}
         probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
         self.spec = probe.spec
         probe.close()
         self.xp = _learner_platform(run.platform)
         self.learner = algos.make_learner(algo_module, run.platform, algo_config, self.spec)
+        self.parallel = None  # the DataParallel learner of --devices > 1
+        if run.devices != "1":
+            from unilab_jax import sharding
+
+            self.parallel = sharding.for_run(self.learner, run, algo_config, algo_module.BUFFER)
+            self.learner = self.parallel or self.learner
+        self.batch_xp = self.parallel or self.xp  # what the batch sources place host arrays with (from_numpy)
         self.logger = MetricLogger(run.logdir)
         self.ckpt_dir = os.path.join(os.path.abspath(run.logdir), "checkpoints")
         self._stop = threading.Event()
@@ -121,6 +144,8 @@ class Trainer:
                 raise FileNotFoundError(f"--resume: no checkpoint under {self.ckpt_dir}")
             state, meta = ckpt.restore(state, lambda a, like: self.xp.from_numpy(a))
             ckpt.close()
+            if self.parallel is not None:
+                state = self.parallel.replicate(state)
             self._resumed_meta = meta
             counters = {k: int(v) for k, v in meta["counters"].items()}
             if meta.get("task") != self.run.task or meta.get("algo") != self.run.algo:
@@ -152,7 +177,7 @@ class Trainer:
             return None
         from unilab_jax.device_replay import DeviceReplay
 
-        return DeviceReplay(pool.buffer, REPLAY_FIELDS)
+        return DeviceReplay(pool.buffer, REPLAY_FIELDS, self.parallel)
 
     def _open_replay_store(self) -> Any:
         """The persistent replay store of ``run.replay_dir`` (None when off).
@@ -185,69 +210,73 @@ class Trainer:
                         else "chunks were lost or the directory changed")
         return store
 
+    def _load_prior(self) -> dict[str, np.ndarray] | None:
+        """The prior data of ``config.prior_dir`` (RLPD's symmetric sampling; None when the algorithm has none)."""
+        directory = getattr(self.config, "prior_dir", "")
+        if not directory:
+            return None
+        from unilab_jax.runtime.buffers import transition_layout
+        from unilab_jax.runtime.prior import load_prior
+
+        fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
+        prior = load_prior(directory, {k: fields[k] for k in REPLAY_FIELDS})
+        log.info("prior data: %d transitions from %s", len(prior["reward"]), directory)
+        return prior
+
     # -- evaluation ------------------------------------------------------------------------------
     def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
-        """Deterministic policy, one full episode in each of ``eval_envs`` environments; raises
-        :class:`StopRequested` when ``stop`` is set before it ends."""
+        """Deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the
+        task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
+        before it ends."""
         import tasks
-        from tasks.walking import WalkingTracker, is_locomotion
+        from unilab_jax.play import run_episodes
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
-                          overrides=self.task_overrides)
-        try:
-            walking = WalkingTracker(task) if is_locomotion(task) else None
-            # A task's own evaluation metrics: ``eval_tracker(task)`` with ``step(action)`` and ``metrics()``.
-            own = task.eval_tracker(task) if getattr(task, "eval_tracker", None) is not None else None
-            tracker = walking or own
-            step = tracker.step if tracker is not None else task.step
-            obs, _ = task.reset()
-            m = self.run.eval_envs
-            ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
-            alive = np.ones(m, dtype=bool)
-            zeros = np.zeros((m, self.spec.action_dim), np.float32)
-            for _ in range(self.spec.episode_length):
-                if stop is not None and stop.is_set():
-                    raise StopRequested("evaluation stopped")
-                action, _ = self.algo.act(weights, obs, zeros, True)
-                out = step(np.asarray(action, np.float32))
-                ret += np.where(alive, out.reward, 0.0)
-                length += alive
-                alive &= ~(out.terminated | out.truncated)
-                obs = out.obs
-                if not alive.any():
-                    break
+                          overrides=self.eval_overrides)
+        zeros = np.zeros((task.num_envs, self.spec.action_dim), np.float32)
+        try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
+            _, stats = run_episodes(task, lambda obs: self.algo.act(weights, obs, zeros, True)[0], stop=stop)
         finally:
             task.close()
-        result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
-                  "eval/episode_length": float(length.mean())}
-        if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
-            metric = walking.result()
-            result.update({f"eval/{k}": metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
-        elif own is not None:
-            result.update({f"eval/{k}": v for k, v in own.metrics().items()})
+        result = {f"eval/{k}": v for k, v in stats.items()}
+        if "tracking_error" in stats:  # locomotion: the walking criterion on the same episodes
+            result["eval/walking"] = float(WALKING.met(stats))  # 1: it walks
         return result
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
         from unilab_jax.checkpoint import Checkpointer
-        from unilab_jax.runtime.pool import WorkerPool
+        from unilab_jax.runtime.pool import WorkerPool, cpu_placement
 
         run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
         evaluator = _AsyncEvaluator(self, stop)
         learner = LearnerThread(run.platform)
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
+        clips = None
+        if run.video_every:
+            from unilab_jax.play import ClipRecorder
+
+            clips = ClipRecorder(self, run.video_every, counters["env_steps"])
         replay = self.algo.BUFFER == "replay"
         hold_window = self._hold_window(cfg) if replay else None
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
         store = self._open_replay_store() if replay else None
-        pool = WorkerPool(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
-                          envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
-                          algo_module=self.algo.__name__, weight_template=weights,
-                          horizon=getattr(cfg, "horizon", 32), serial=run.serial,
-                          replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
-                          if replay else 0,
-                          max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
+        prior = self._load_prior() if replay else None
+        pool_kwargs = dict(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
+                           envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
+                           algo_module=self.algo.__name__, weight_template=weights,
+                           horizon=getattr(cfg, "horizon", 32), serial=run.serial,
+                           replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
+                           if replay else 0,
+                           max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
+        if run.ray_address:
+            from unilab_jax.runtime.ray_pool import RayPool
+
+            pool = RayPool(run.ray_address, workers_per_host=run.ray_workers_per_host or None, **pool_kwargs)
+        else:
+            pool = WorkerPool(**pool_kwargs, worker_cpus=cpu_placement(run.num_workers, run.pin_cpus)
+                              if run.pin_cpus >= 0 and not run.serial else None)
         ckpt = Checkpointer(self.ckpt_dir)
         restore_signals = stop_on_signals(stop)
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
@@ -262,10 +291,10 @@ class Trainer:
             pool.start(stop=stop.is_set)
             # The source before the first weights: replay workers wait for them, so a held run's step
             # limit is in place before any env step.
-            source = (_ReplaySource(pool, self.xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
+            source = (_ReplaySource(pool, self.batch_xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
                                     self._resumed_meta.get("replay"), self._device_replay(pool),
-                                    total_steps=run.total_steps, hold_window=hold_window)
-                      if replay else _TrajectorySource(pool, self.xp, self.spec.reward_terms))
+                                    total_steps=run.total_steps, hold_window=hold_window, prior=prior)
+                      if replay else _TrajectorySource(pool, self.batch_xp, self.spec.reward_terms))
             pool.publish(weights, counters["version"])
             prefetch = _Prefetcher(source.produce, inline=run.serial)
             t_last, steps_last = time.time(), counters["env_steps"]
@@ -285,6 +314,8 @@ class Trainer:
                                 "perf/publish_s": time.perf_counter() - t_publish})
                 scalars.update(stats["scalars"])
                 scalars.update(source.pool_scalars())
+                if self.spec.success_on_termination and "episode/terminated_fraction" in scalars:
+                    scalars["episode/success_rate"] = scalars["episode/terminated_fraction"]
                 scalars.update({"perf/env_steps_per_s": (counters["env_steps"] - steps_last) / max(now - t_last, 1e-9),
                                 "perf/learner_updates_per_s": 1.0 / max(now - t_last, 1e-9),
                                 "time/wall_s": now - t_start})
@@ -297,6 +328,8 @@ class Trainer:
                     evaluated_at = counters["env_steps"]
                     next_eval += run.eval_every
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+                if clips is not None and clips.due(counters["env_steps"]):
+                    clips.submit(learner.call(stop, self._numpy_weights, state), counters["env_steps"])
                 if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                     next_ckpt += run.checkpoint_every
@@ -321,6 +354,8 @@ class Trainer:
         if not interrupted and evaluated_at != counters["env_steps"]:
             evaluator.submit(self._numpy_weights(state), dict(counters), time.time() - t_start)
         last_eval = evaluator.close(cancel=interrupted)
+        if clips is not None:
+            clips.close(cancel=interrupted)
         self.logger.close()
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
                    "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
@@ -640,6 +675,9 @@ class _ReplaySource:
       everything received so far (the store's cursor goes into its record). After ``--resume`` the
       rings start empty and the disk tier alone can start learning at once, where the bookkeeping
       left off. Without a store, a resumed run warms up again and counts the ratio afresh.
+    * With prior data (``prior``, from an algorithm's ``prior_dir``: RLPD), every minibatch is composed
+      of online rows drawn as above and ``prior_fraction`` of rows drawn uniformly from the prior data
+      (``core.rlpd.compose``; symmetric sampling at 0.5). The warm-up and the ratio count online data only.
     """
 
     _TICK_S = 0.25  # seconds between no-op items while the ring warms up
@@ -648,8 +686,12 @@ class _ReplaySource:
 
     def __init__(self, pool: Any, xp: Any, cfg: Any, counters: dict[str, int], seed: int, store: Any = None,
                  hot_fraction: float = 0.5, saved: dict[str, Any] | None = None, mirror: Any = None, *,
-                 total_steps: int, hold_window: int | None = None):
+                 total_steps: int, hold_window: int | None = None, prior: dict[str, np.ndarray] | None = None):
         self._pool, self._xp, self._cfg, self._mirror = pool, xp, cfg, mirror
+        # Prior data (RLPD): each minibatch is (online, prior) rows as core.rlpd.symmetric_split says.
+        self._prior = prior
+        self._rows = (rlpd.symmetric_split(cfg.batch_size, cfg.prior_fraction) if prior is not None
+                      else (cfg.batch_size, 0))
         self._seed = seed % 2**32
         self._steps0 = counters["env_steps"]  # env steps before this process (resume)
         self._budget = max(int(total_steps) - self._steps0, 0)  # pool env steps this process may take
@@ -704,7 +746,7 @@ class _ReplaySource:
 
     def produce(self, stop: threading.Event) -> tuple[dict, dict] | None:
         cfg, pool = self._cfg, self._pool
-        u, b = cfg.updates_per_call, cfg.batch_size
+        u, (b, b_prior) = cfg.updates_per_call, self._rows
         noop = {}, {"scalars": {}, "episodes": 0, "noop": True}
         if not self._warm:
             t_end = time.monotonic() + self._TICK_S
@@ -748,6 +790,11 @@ class _ReplaySource:
                     self._spiller.spill()
                     batch = self._tiers.sample(u, b, rng)
                 out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in REPLAY_FIELDS}
+            if b_prior:
+                idx = rng.integers(0, len(self._prior["reward"]), size=u * b_prior)
+                out = rlpd.compose(out, {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))
+                                         for k, v in self._prior.items()})
+                scalars["perf/prior_rows"] = float(b_prior)
         self._grad_steps += u
         self._produced += 1
         scalars.update({"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1})
@@ -808,6 +855,7 @@ class _ReplaySource:
         hot = float(st.get("replay_size", 0))
         # Replay workers wait only for the first weights and at the step limit: the pause of a held ratio.
         out = {"replay/size": hot, "perf/workers_paused_s": st["worker_wait_s"], **_worker_scalars(st)}
+        out.update({f"ray/{k}": v for k, v in st.get("ray", {}).items()})  # Ray rollouts: hosts alive, lost
         if self._store is not None:
             disk = self._store.size
             # Rings and disk overlap (every ring row is written through): distinct rows ~ the larger tier.
@@ -817,6 +865,7 @@ class _ReplaySource:
         if st["recent_episode_returns"].size:
             out["episode/return"] = st["episode_return_mean"]
             out["episode/length"] = st["episode_length_mean"]
+            out["episode/terminated_fraction"] = st["episode_terminated_fraction"]
         out.update({f"reward/{k}": v for k, v in st["reward_terms"].items()})
         return out
 

@@ -119,7 +119,7 @@ def test_simulated_rotation_fall_and_metrics():
     assert out.reward_terms["fall"][1] == pytest.approx(-10.0) and out.reward_terms["fall"][0] == 0.0
     total = np.sum(np.stack(list(out.reward_terms.values())), axis=0)
     np.testing.assert_allclose(out.reward, total, rtol=1e-5, atol=1e-6)
-    m = tracker.metrics()
+    m = tracker.result()
     assert m["time_to_fall"] == pytest.approx((1.0 + 6 / 400) / 2)  # env 0 never fell, env 1 at step 6
     assert m["rotation_rate"] > 0.0 and m["rotate_reward"] > 0.0
     task.close()
@@ -151,3 +151,17 @@ def test_bad_config_is_refused():
         tasks.make("allegro_rotate", 1, overrides={"shapes": ("sphere",)})
     with pytest.raises(ValueError, match="multiple of sim_dt"):
         tasks.make("allegro_rotate", 1, overrides={"ctrl_dt": 0.052})
+
+
+def test_history_variant_evaluates_through_the_variant():
+    """``allegro_rotate_hist``'s tracker steps the variant (history observations), reads the wrapped task."""
+    task = tasks.make("allegro_rotate_hist", 2, seed=0, overrides={"history_len": 3, "episode_length": 5})
+    tracker = task.eval_tracker()
+    task.reset()
+    out = tracker.step(np.zeros((2, 16), np.float32))
+    assert out.obs.shape == (2, task.spec.obs_dim) == (2, 3 * 48 + ar.EXTRINSICS_DIM)
+    assert set(tracker.result()) == set(ar.RotationTracker.LOGGED)
+    task.close()
+    go1 = tasks.make("go1_joystick_flat_hist", 1, seed=0)
+    assert not hasattr(go1, "eval_tracker")  # no tracker of its own: the walking metric applies
+    go1.close()

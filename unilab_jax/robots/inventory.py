@@ -101,12 +101,14 @@ def parse(text: str) -> list[RobotEntry]:
 
 
 class LocalServer:
-    """A ``python -m unilab_jax.robots.serve`` subprocess on a free loopback port (no cameras)."""
+    """A ``python -m unilab_jax.robots.serve`` subprocess on a free loopback port (no cameras); it stops by
+    itself when the process that started it dies, even by SIGKILL (``--exit_with_parent``)."""
 
     def __init__(self, arm: str, task: str, speed: float, seed: int = 0, port: int = 0,
                  extra: tuple[str, ...] = ("--dense_reward",)):
         cmd = [sys.executable, "-m", "unilab_jax.robots.serve", f"--robot={arm}", f"--task={task}",
-               f"--speed={speed}", "--cameras=none", "--host=127.0.0.1", f"--port={port}", f"--seed={seed}", *extra]
+               f"--speed={speed}", "--cameras=none", "--host=127.0.0.1", f"--port={port}", f"--seed={seed}",
+               "--exit_with_parent", *extra]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env={**os.environ, "OMP_NUM_THREADS": "1"})
         lines: queue.Queue[str] = queue.Queue()
@@ -137,10 +139,11 @@ class LocalServer:
 
 class Inventory:
     """Starts the local servers of ``entries`` (``with Inventory(...) as inv: inv.addresses``); stops them
-    on exit, also when starting one of them fails."""
+    on exit, also when starting one of them fails (``dense_reward``: the servers' reward, else success only)."""
 
-    def __init__(self, entries: list[RobotEntry], task: str, speed: float, seed: int = 0):
+    def __init__(self, entries: list[RobotEntry], task: str, speed: float, seed: int = 0, dense_reward: bool = True):
         self.entries, self.task, self.speed, self.seed = entries, task, speed, seed
+        self.extra = ("--dense_reward",) if dense_reward else ()
         self.servers: list[LocalServer] = []
         self.addresses: list[str] = []
 
@@ -148,7 +151,8 @@ class Inventory:
         try:
             for i, e in enumerate(self.entries):
                 if e.sim:
-                    self.servers.append(LocalServer(SIM_ROBOTS[e.sim], self.task, self.speed, seed=self.seed + i))
+                    self.servers.append(LocalServer(SIM_ROBOTS[e.sim], self.task, self.speed, seed=self.seed + i,
+                                                    extra=self.extra))
                     self.addresses.append(self.servers[-1].address)
                 else:
                     self.addresses.append(e.address)

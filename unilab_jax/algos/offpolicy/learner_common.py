@@ -24,6 +24,18 @@ from unilab_jax.core import normalizer
 from unilab_jax.fields import REPLAY_FIELDS as BATCH_FIELDS
 
 NP = shim.get("numpy")
+# compute_dtype "auto", per jax backend (jax.default_backend()); other backends: float32.
+AUTO_COMPUTE_DTYPE = {"cpu": "float32", "gpu": "bfloat16", "cuda": "bfloat16", "rocm": "bfloat16"}
+
+
+def compute_dtype(config: Any, backend: str) -> str:
+    """The matrix-multiply dtype a learner on ``backend`` ("cpu", "gpu", ..., "mlx") uses for ``config``."""
+    name = config.compute_dtype
+    if name == "auto":
+        return AUTO_COMPUTE_DTYPE.get(backend, "float32")
+    if backend == "mlx" and name != "float32":
+        raise ValueError(f"compute_dtype={name!r}: the MLX learners compute in float32 (use 'float32' or 'auto')")
+    return name
 
 
 def make_optimizer(opt: ModuleType, learning_rate: float, weight_decay: float = 0.0,
@@ -60,6 +72,10 @@ def prepare_batch(batch: dict) -> dict:
     for k in ("reward", "terminated", "truncated"):
         out[k] = xp.astype(out[k], xp.float32)
     return out
+
+
+# Per-step metrics of the actor and temperature update (zero on the steps ``actor_every`` skips).
+ACTOR_METRICS = ("actor_loss", "entropy", "policy_std", "alpha_loss", "actor_grad_norm")
 
 
 def update_obs_stats(obs_norm: normalizer.RunningStats, critic_norm: normalizer.RunningStats, batch: dict,
@@ -102,12 +118,29 @@ class SACFamilyBase:
         self.target_entropy = float(config.target_entropy_per_dim * spec.action_dim)
         self._project = getattr(algo, "project_params", None)
         self._reward_scale = getattr(algo, "reward_scale", None)
+        # An algorithm with ``critic_noise_shape(config)`` (RLPD) gets ``(eps_next, u)`` in its critic loss,
+        # ``u`` uniform of that shape, drawn per gradient step from a third key of the step's split.
+        shape = getattr(algo, "critic_noise_shape", None)
+        self.critic_noise_shape = None if shape is None else tuple(shape(config))
+        # ``actor_every`` (RLPD): the actor and the temperature move on every actor_every-th gradient step only.
+        self.actor_every = int(getattr(config, "actor_every", 1))
         self.trace_count = 0  # traces of the compiled update / step (tests assert no retracing)
 
     def init_params(self, key_words: np.ndarray) -> dict:
         s = self.spec
         return init_on_numpy(self.algo.init_params, key_words, self.xp, s.obs_dim, s.critic_obs_dim, s.action_dim,
                              self.config, targets=("critic",))
+
+    def call_metrics(self, stacked: dict) -> dict:
+        """A call's metrics from their ``[U]`` stacks: means; with ``actor_every`` > 1 the actor's metrics
+        (``ACTOR_METRICS``) are averaged over the steps that moved the actor, whose count is ``actor_steps``."""
+        if self.actor_every == 1:
+            return mean_metrics(stacked)
+        stacked = dict(stacked)
+        xp = shim.namespace(stacked["actor_steps"])
+        count = xp.sum(stacked.pop("actor_steps"))
+        delayed = {k: xp.sum(stacked.pop(k)) / xp.maximum(count, 1.0) for k in ACTOR_METRICS if k in stacked}
+        return {**mean_metrics(stacked), **delayed, "actor_steps": count}
 
     def initial_state(self, params: dict, k_state: Any) -> SACState:
         s, xp = self.spec, self.xp

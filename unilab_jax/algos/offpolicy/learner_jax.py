@@ -1,4 +1,4 @@
-"""JAX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, TD3).
+"""JAX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, RLPD, TD3).
 
 ``init(key) -> state``; ``update(state, batch) -> (state, metrics)``; ``weights(state)`` (static).
 ``batch`` is a dict of arrays shaped ``[U, B, ...]`` (U = ``config.updates_per_call``, B =
@@ -18,6 +18,12 @@ not depend on the platform (optimizers, initial states, the normalizer step, met
 
 ``compiler_options`` (e.g. ``{"xla_backend_optimization_level": 0}``, which halves CPU compile time
 for tests and tiny networks) go to ``jax.jit``. ``trace_count`` counts traces of ``update``.
+
+``compute_dtype`` (``learner_common.compute_dtype`` of ``config.compute_dtype`` on this jax backend):
+the update is traced inside ``xp.compute_dtype``, so with "bfloat16" every network matmul (forward and
+backward) takes bf16 operands with float32 accumulation and results; parameters, optimizer states,
+norms, softmax, the C51 projection, log-probs and losses stay float32. "float32" traces exactly the
+float32 program.
 """
 
 from __future__ import annotations
@@ -50,7 +56,13 @@ class _Jitted:
     """The JAX side of every off-policy learner: ``_update`` as ONE jit (state donated on accelerators), ``init``."""
 
     def _compile(self, compiler_options: dict | None) -> None:
-        self._update_jit = jax.jit(self._update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
+        self.compute_dtype = common.compute_dtype(self.config, jax.default_backend())
+
+        def update(state: Any, batch: dict) -> tuple[Any, dict]:
+            with XP.compute_dtype(self.compute_dtype):
+                return self._update(state, batch)
+
+        self._update_jit = jax.jit(update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
         self._init_state = jax.jit(self.initial_state, compiler_options=compiler_options)
 
     def update(self, state: Any, batch: dict) -> tuple[Any, dict]:
@@ -85,38 +97,55 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
 
         def step(st: SACState, xs: tuple) -> tuple[SACState, dict]:
             mb, key = xs
-            k_next, k_pi = jax.random.split(key)
-            eps_next = jax.random.normal(k_next, mb["action"].shape, jnp.float32)
-            eps = jax.random.normal(k_pi, mb["action"].shape, jnp.float32)
+            keys = jax.random.split(key, 2 if self.critic_noise_shape is None else 3)
+            eps_next = jax.random.normal(keys[0], mb["action"].shape, jnp.float32)
+            eps = jax.random.normal(keys[1], mb["action"].shape, jnp.float32)
+            if self.critic_noise_shape is not None:
+                eps_next = (eps_next, jax.random.uniform(keys[2], self.critic_noise_shape, jnp.float32))
             # 1. critics
             (_, c_metrics), c_grads = jax.value_and_grad(algo.critic_loss, has_aux=True)(
                 st.critic, st.target_critic, st.actor, st.log_alpha, norms, mb, eps_next, cfg)
             updates, critic_opt = self.critic_tx.update(c_grads, st.critic_opt, st.critic)
             critic = project(optax.apply_updates(st.critic, updates))
-            # 2. actor, against the updated critics
+            # 2.-3. actor against the updated critics, then the temperature (every actor_every-th step)
+            if self.actor_every == 1:
+                (actor, actor_opt, log_alpha, alpha_opt), a_metrics = actor_step(st, critic, mb, eps)
+            else:
+                do_actor = (st.steps + 1) % self.actor_every == 0
+                (actor, actor_opt, log_alpha, alpha_opt), a_metrics = jax.lax.cond(
+                    do_actor, actor_step, skip_actor, st, critic, mb, eps)
+                a_metrics["actor_steps"] = do_actor.astype(jnp.float32)
+            # 4. targets
+            target_critic = project(polyak.polyak(st.target_critic, critic, cfg.tau))
+            metrics = {**c_metrics, **a_metrics, "alpha": jnp.exp(log_alpha),
+                       "critic_grad_norm": optax.tree.norm(c_grads)}
+            new = st._replace(actor=actor, critic=critic, target_critic=target_critic, actor_opt=actor_opt,
+                              critic_opt=critic_opt, log_alpha=log_alpha, alpha_opt=alpha_opt, steps=st.steps + 1)
+            return new, metrics
+
+        def actor_step(st: SACState, critic: Any, mb: dict, eps: jax.Array) -> tuple[tuple, dict]:
             (_, (a_metrics, log_prob)), a_grads = jax.value_and_grad(algo.actor_loss, has_aux=True)(
                 st.actor, critic, st.log_alpha, norms, mb, eps, cfg)
             updates, actor_opt = self.actor_tx.update(a_grads, st.actor_opt, st.actor)
             actor = project(optax.apply_updates(st.actor, updates))
-            # 3. temperature
             log_alpha, alpha_opt, alpha_loss = st.log_alpha, st.alpha_opt, jnp.zeros((), jnp.float32)
             if cfg.autotune_alpha:
                 alpha_loss, g = jax.value_and_grad(algo.temperature_loss)(st.log_alpha, log_prob,
                                                                             self.target_entropy)
                 updates, alpha_opt = self.alpha_tx.update(g, st.alpha_opt, st.log_alpha)
                 log_alpha = optax.apply_updates(st.log_alpha, updates)
-            # 4. targets
-            target_critic = project(polyak.polyak(st.target_critic, critic, cfg.tau))
-            metrics = {**c_metrics, **a_metrics, "alpha": jnp.exp(log_alpha), "alpha_loss": alpha_loss,
-                       "critic_grad_norm": optax.tree.norm(c_grads), "actor_grad_norm": optax.tree.norm(a_grads)}
-            new = st._replace(actor=actor, critic=critic, target_critic=target_critic, actor_opt=actor_opt,
-                              critic_opt=critic_opt, log_alpha=log_alpha, alpha_opt=alpha_opt, steps=st.steps + 1)
-            return new, metrics
+            return (actor, actor_opt, log_alpha, alpha_opt), {**a_metrics, "alpha_loss": alpha_loss,
+                                                              "actor_grad_norm": optax.tree.norm(a_grads)}
+
+        def skip_actor(st: SACState, critic: Any, mb: dict, eps: jax.Array) -> tuple[tuple, dict]:
+            shapes = jax.eval_shape(actor_step, st, critic, mb, eps)[1]
+            return ((st.actor, st.actor_opt, st.log_alpha, st.alpha_opt),
+                    jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes))
 
         n = batch["reward"].shape[0]
         keys = jax.random.split(state.key, n + 1)
         state, metrics = jax.lax.scan(step, state, (batch, keys[1:]))
-        metrics = common.mean_metrics(metrics)
+        metrics = self.call_metrics(metrics)
         metrics["reward_scale"] = norms.reward_scale
         return state._replace(key=keys[0]), metrics
 

@@ -1,4 +1,4 @@
-"""MLX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, TD3), the same math as
+"""MLX learners for the off-policy algorithms (SAC, FastSAC, FlashSAC, RLPD, TD3), the same math as
 ``learner_jax`` (what does not depend on the platform is ``learner_common``'s, shared with it).
 
 ``SACFamilyLearner(algo, config, spec)`` and ``TD3Learner(config, spec)`` expose the JAX learners'
@@ -117,12 +117,15 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
     """Learner for SAC, FastSAC and FlashSAC (``algo`` is the algorithm module)."""
 
     def __init__(self, algo: ModuleType, config: Any, spec: Any):
+        common.compute_dtype(config, "mlx")
         super().__init__(algo, config, spec, optim, XP)
-        self._step = mx.compile(self._step_fn)
+        # With actor_every > 1, a critic-only variant for the steps that leave the actor (as TD3's delay).
+        self._steps = {flag: mx.compile(functools.partial(self._step_fn, do_actor=flag))
+                       for flag in ((True,) if self.actor_every == 1 else (False, True))}
 
     def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
-                 eps: mx.array) -> tuple[tuple, dict]:
-        """One gradient step (critics, actor, temperature, Polyak), pure in its arguments."""
+                 eps: mx.array, do_actor: bool) -> tuple[tuple, dict]:
+        """One gradient step (critics, [actor, temperature,] Polyak), pure in its arguments."""
         self.trace_count += 1
         cfg, algo = self.config, self.algo
         project = self._project or (lambda p: p)
@@ -133,21 +136,28 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
             critic, target_critic, actor, log_alpha, norms, mb, eps_next, cfg)
         updates, new_critic_opt = self.critic_tx.update(c_grads, critic_opt, critic)
         new_critic = project(optim.apply_updates(critic, updates))
-        # 2. actor, against the updated critics
-        (_, (a_metrics, log_prob)), a_grads = XP.value_and_grad(algo.actor_loss, has_aux=True)(
-            actor, new_critic, log_alpha, norms, mb, eps, cfg)
-        updates, new_actor_opt = self.actor_tx.update(a_grads, actor_opt, actor)
-        new_actor = project(optim.apply_updates(actor, updates))
-        # 3. temperature
-        new_log_alpha, new_alpha_opt, alpha_loss = log_alpha, alpha_opt, mx.array(0.0, dtype=mx.float32)
-        if cfg.autotune_alpha:
-            alpha_loss, g = XP.value_and_grad(algo.temperature_loss)(log_alpha, log_prob, self.target_entropy)
-            updates, new_alpha_opt = self.alpha_tx.update(g, alpha_opt, log_alpha)
-            new_log_alpha = optim.apply_updates(log_alpha, updates)
+        new_actor, new_actor_opt, new_log_alpha, new_alpha_opt = actor, actor_opt, log_alpha, alpha_opt
+        if do_actor:
+            # 2. actor, against the updated critics
+            (_, (a_metrics, log_prob)), a_grads = XP.value_and_grad(algo.actor_loss, has_aux=True)(
+                actor, new_critic, log_alpha, norms, mb, eps, cfg)
+            updates, new_actor_opt = self.actor_tx.update(a_grads, actor_opt, actor)
+            new_actor = project(optim.apply_updates(actor, updates))
+            # 3. temperature
+            alpha_loss = mx.array(0.0, dtype=mx.float32)
+            if cfg.autotune_alpha:
+                alpha_loss, g = XP.value_and_grad(algo.temperature_loss)(log_alpha, log_prob, self.target_entropy)
+                updates, new_alpha_opt = self.alpha_tx.update(g, alpha_opt, log_alpha)
+                new_log_alpha = optim.apply_updates(log_alpha, updates)
+            a_metrics = {**a_metrics, "alpha_loss": alpha_loss, "actor_grad_norm": optim.global_norm(a_grads)}
+        else:
+            a_metrics = {k: mx.array(0.0, dtype=mx.float32) for k in common.ACTOR_METRICS}
+        if self.actor_every > 1:
+            a_metrics["actor_steps"] = mx.array(1.0 if do_actor else 0.0, dtype=mx.float32)
         # 4. targets
         new_target = project(polyak.polyak(target_critic, new_critic, cfg.tau))
-        metrics = {**c_metrics, **a_metrics, "alpha": mx.exp(new_log_alpha), "alpha_loss": alpha_loss,
-                   "critic_grad_norm": optim.global_norm(c_grads), "actor_grad_norm": optim.global_norm(a_grads)}
+        metrics = {**c_metrics, **a_metrics, "alpha": mx.exp(new_log_alpha),
+                   "critic_grad_norm": optim.global_norm(c_grads)}
         return (new_actor, new_critic, new_target, new_actor_opt, new_critic_opt, new_log_alpha, new_alpha_opt,
                 steps + 1), metrics
 
@@ -156,7 +166,8 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` is a no-op.
 
         ``noise`` (testing/parity only): ``{"eps_next": [U, B, A], "eps": [U, B, A]}`` replacing the
-        standard-normal draws made from the state's key (the key still advances as usual).
+        standard-normal draws made from the state's key (the key still advances as usual); algorithms
+        with a critic noise (RLPD) also take ``"u": [U, *critic_noise_shape]``.
         """
         if not batch:
             return state, {}
@@ -165,21 +176,27 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         norms = tuple(norms)
 
         n = batch["reward"].shape[0]
-        _check_noise(noise, ("eps_next", "eps"), n)
+        _check_noise(noise, ("eps_next", "eps") + (() if self.critic_noise_shape is None else ("u",)), n)
         keys = XP.random.split(state.key, n + 1)
+        step0 = int(state.steps.item()) if self.actor_every > 1 else 0  # the actor's schedule, read once per call
         carry = (state.actor, state.critic, state.target_critic, state.actor_opt, state.critic_opt,
                  state.log_alpha, state.alpha_opt, state.steps)
         step_metrics = []
         for i in range(n):
             mb = {k: v[i] for k, v in batch.items()}
             shape = tuple(mb["action"].shape)
-            k_next, k_pi = XP.random.split(keys[i + 1], 2)
-            eps_next = _noise(noise, "eps_next", i, shape, k_next)
-            eps = _noise(noise, "eps", i, shape, k_pi)
-            carry, m = self._step(carry, norms, mb, eps_next, eps)
+            ks = XP.random.split(keys[i + 1], 2 if self.critic_noise_shape is None else 3)
+            eps_next = _noise(noise, "eps_next", i, shape, ks[0])
+            eps = _noise(noise, "eps", i, shape, ks[1])
+            if self.critic_noise_shape is not None:
+                u = (mx.array(np.asarray(noise["u"][i], np.float32)) if noise is not None
+                     else mx.random.uniform(shape=self.critic_noise_shape, dtype=mx.float32, key=ks[2]))
+                eps_next = (eps_next, u)
+            do_actor = (step0 + i + 1) % self.actor_every == 0
+            carry, m = self._steps[do_actor](carry, norms, mb, eps_next, eps)
             mx.eval(carry, m)  # one eval per compiled step
             step_metrics.append(m)
-        metrics = common.mean_metrics(_stack(step_metrics))
+        metrics = self.call_metrics(_stack(step_metrics))
         metrics["reward_scale"] = norms[2]
         actor, critic, target_critic, actor_opt, critic_opt, log_alpha, alpha_opt, steps = carry
         new = state._replace(actor=actor, critic=critic, target_critic=target_critic, actor_opt=actor_opt,
@@ -193,6 +210,7 @@ class TD3Learner(_Compiled, common.TD3Base):
     """Learner for TD3: delayed actor and target updates every ``policy_delay`` gradient steps."""
 
     def __init__(self, config: td3.TD3Config, spec: Any):
+        common.compute_dtype(config, "mlx")
         super().__init__(config, spec, optim, XP)
         self._steps = {flag: mx.compile(functools.partial(self._step_fn, do_actor=flag)) for flag in (False, True)}
 

@@ -1,0 +1,19 @@
+"""RLPD on peg insertion through robot servers, with 20 demonstrations (robots as resources, docs/ROBOTS.md).
+
+    python experiments/rlpd_franka_peg.py --speed=20 --total_steps=2000 --logdir=runs/rlpd_peg
+    python experiments/rlpd_franka_peg.py --robots=sim:franka_emika_panda,sim:franka_emika_panda \\
+        --demos=demos/peg --eval_every=1000 --eval_envs=1 --num_workers=1 --config utd=20
+
+Without ``--demos`` the scripted expert records ``--num_demos`` (20) episodes on the run's robots first
+(``LOGDIR/demos``). Each minibatch is half demonstrations, half online data (symmetric sampling), the
+critics a LayerNorm ensemble of 10 with a subset-of-2 min target. The policy sees proprioception and the
+robot's privileged object state (``policy_state``: the state-based stand-in for the cameras). Reward: 1 on
+success only (the episode then ends), as a physical robot's success detector gives it (``--dense_reward``
+adds the shaped term). Flags and recipe: ``unilab_jax.robot_cli``.
+"""
+
+from unilab_jax.robot_cli import MANIPULATION_RECIPE, STATE_TASK, run_robot_experiment
+
+if __name__ == "__main__":
+    run_robot_experiment("rlpd", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,
+                         task_recipe=STATE_TASK, dense_reward=False)

@@ -1,0 +1,13 @@
+"""SAC on peg insertion through robot servers, without prior data: the baseline of ``rlpd_franka_peg.py``.
+
+    python experiments/sac_franka_peg.py --speed=20 --total_steps=2000 --logdir=runs/sac_peg
+
+Same networks, observations (``policy_state``), reward (success only), batch and update-to-data ratio as
+``rlpd_franka_peg.py``; SAC's twin critics and no demonstrations. Flags and recipe: ``unilab_jax.robot_cli``.
+"""
+
+from unilab_jax.robot_cli import MANIPULATION_RECIPE, STATE_TASK, run_robot_experiment
+
+if __name__ == "__main__":
+    run_robot_experiment("sac", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,
+                         task_recipe=STATE_TASK, dense_reward=False)

@@ -1,0 +1,85 @@
+"""RLPD and SAC on peg insertion through robot servers: the experiment command, its flag checks."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from unilab_jax.runtime.replay_store import ReplayStore
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _script(name: str, *args: str, timeout: float) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, os.path.join(ROOT, "experiments", name), *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
+    logdir = tmp_path / "run"
+    out = _script("rlpd_franka_peg.py", "--speed=20", "--total_steps=2000", f"--logdir={logdir}", timeout=400)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "demonstrations: 20 episodes (" in out.stdout
+    with ReplayStore(str(logdir / "demos")) as store:
+        rows = store.read(store.first_row, store.committed)
+    assert len(set(rows["episode"].tolist())) == 20
+    for e in range(20):  # the label: the episode ended by success (termination), not by its time limit
+        ep = rows["episode"] == e
+        assert rows["success"][ep].all() == rows["terminated"][ep][-1]
+    # the expert succeeds in nearly all (a robot paced at speed 20 on a loaded VM may miss one: 19/20 seen once)
+    assert rows["success"][np.r_[np.flatnonzero(np.diff(rows["episode"])), len(rows["episode"]) - 1]].sum() >= 17
+    metrics = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
+    prior_rows = [r["perf/prior_rows"] for r in metrics if "perf/prior_rows" in r]
+    assert prior_rows and set(prior_rows) == {64.0}  # half of each batch of 128 from the demonstrations
+    assert any("loss/q_std" in r for r in metrics)  # the ensemble's spread: RLPD's critic ran
+    summary = json.load(open(logdir / "summary.json"))
+    assert summary["env_steps"] >= 2000 and not summary["interrupted"]
+    assert 0.0 <= summary["eval/success_rate"] <= 1.0 and np.isfinite(summary["eval/return"])
+    # robot time at speed 1: 2000 steps at 10 Hz plus the demonstrations' own steps
+    assert summary["robot_s"] == pytest.approx(200.0 + len(rows["reward"]) / 10.0, abs=0.2)
+    assert not (logdir / "demos.partial").exists()
+    # these demonstrations hold one robot's inventory one-hot: a run on two robots refuses them
+    out = _script("rlpd_franka_peg.py", "--robots=sim:franka_emika_panda,sim:franka_emika_panda",
+                  f"--demos={logdir / 'demos'}", f"--logdir={tmp_path / 'other'}", timeout=200)
+    assert out.returncode == 2 and "this run needs" in out.stderr and "Traceback" not in out.stderr, out.stderr[-2000:]
+
+
+@pytest.mark.parametrize("script,args,message", [
+    ("sac_franka_peg.py", ["--demos=/nonexistent"], "learns without prior data"),
+    ("rlpd_franka_peg.py", ["--demos=/nonexistent"], "no replay store there"),
+    ("rlpd_franka_peg.py", ["--eval_every=100"], "evaluation needs 1 more"),
+    ("rlpd_franka_peg.py", ["--config", "prior_fraction=1.0"], "prior_fraction must be in [0, 1)"),
+])
+def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message):
+    out = _script(script, *args, f"--logdir={tmp_path / 'x'}", timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert message in out.stderr and "Traceback" not in out.stderr
+
+
+def test_rlpd_improves_on_its_first_evaluation(tmp_path):
+    """The cheapest learning configuration: state-based peg insertion with the dense reward, three robots at
+    speed 50 (one trains, two evaluate every 300 steps while it does), 900 env steps, utd 8.
+
+    Measured on the 2-core VM (seeds 0-3, eval return at 300 / 600 / 900 steps): 0.68 / 5.87 / 10.97,
+    0.95 / 10.5 / 11.69, 1.18 / 4.58 / 51.19, 1.11 / 3.25 / 11.34 (gains 10.2-50.0; raw data
+    bench/results/local/rlpd_peg_learning_sweep.txt); 60-100 s wall, ~40 s CPU, the VM shared with other jobs.
+    The threshold (final > first + 2) sits far below the smallest gain measured. The run samples through the
+    device mirror (``--replay_on_device=on``, as on a GPU) to cover prior data composed with it; the sweep
+    sampled on the host (seed 0 through the mirror: 0.73 / 3.12 / 14.11).
+    """
+    logdir = tmp_path / "run"
+    robots = ",".join(["sim:franka_emika_panda"] * 3)
+    out = _script("rlpd_franka_peg.py", f"--robots={robots}", "--num_workers=1", "--eval_envs=2", "--eval_every=300",
+                  "--speed=50", "--total_steps=900", "--dense_reward", "--config", "utd=8", "--config",
+                  "init_alpha=0.05", "--replay_on_device=on", f"--logdir={logdir}", timeout=400)
+    assert out.returncode == 0, out.stderr[-3000:]
+    evals = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
+    evals = [(r["step"], r["eval/return"]) for r in evals if "eval/return" in r]
+    assert len(evals) >= 3 and evals[0][0] <= 400, evals
+    print("eval returns:", evals)
+    assert evals[-1][1] > evals[0][1] + 2.0, evals

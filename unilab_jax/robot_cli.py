@@ -1,0 +1,171 @@
+"""The robot experiments' command line (robots as resources, docs/ROBOTS.md): SAC and RLPD on the manipulation
+tasks through robot servers. ``experiments/sac_franka_pick.py`` and its siblings are::
+
+    from unilab_jax.robot_cli import run_robot_experiment
+    run_robot_experiment("rlpd", "robot_peg_insertion", RECIPE, default_total_steps=20_000)
+
+Flags beside the shared ones (``unilab_jax.cli``):
+
+* ``--robots``: a comma list or a ``.toml`` inventory (``unilab_jax.robots.inventory``): ``sim:NAME`` robots are
+  started here as local robot servers (``--speed`` times real time, no cameras; stopped at exit; dense reward
+  or success only: ``--dense_reward``, default the experiment's),
+  ``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and health first.
+* Assignment: one robot per rollout worker (``--num_workers`` defaults to, and ``auto`` is, the number of robots,
+  less the ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
+  Periodic evaluation (``--eval_every``) needs robots the workers leave free: ``num_workers x envs_per_worker
+  + eval_envs <= robots``. Without ``--eval_every``, evaluation runs at the end on ``--eval_envs`` robots
+  (default: all), once the workers have released them. An evaluation runs on the robots that answer within
+  ``EVAL_CONNECT_S`` if some are gone for good (``eval/episodes`` says how many).
+* Algorithms with prior data (RLPD): ``--demos=DIR``, a replay store of demonstrations
+  (``python -m unilab_jax.robots.record``) recorded on the same inventory; without it, ``--num_demos``
+  episodes of the scripted expert are recorded on the run's robots first, into ``LOGDIR/demos`` (reused by
+  ``--resume``), and their robot time counts towards the run's.
+
+The summary adds ``robot_s``: robot time at speed 1 (env steps x control period, summed over robots, plus
+the demonstrations'), what physical robots would need.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import signal
+import sys
+from collections.abc import Mapping
+from typing import Any
+
+from absl import flags
+
+from unilab_jax.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
+
+# The manipulation recipe of sac_franka_peg, rlpd_franka_peg and rlpd_franka_pick: small networks and utd 4 fit a
+# 2-core CPU (``--config utd=20``: the RLPD paper's ratio, for a GPU); the policy sees the object state.
+MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), "batch_size": 128,
+                       "updates_per_call": 16, "publish_every": 16, "utd": 4.0, "learning_starts": 300,
+                       "replay_capacity": 200_000, "gamma": 0.95}
+STATE_TASK = {"policy_state": True}
+EVAL_CONNECT_S = 10.0  # how long an evaluation waits for robots before going on with those that answer
+
+flags.DEFINE_string("robots", "sim:franka_emika_panda", "robot inventory: comma list of sim:NAME and "
+                    "tcp://HOST:PORT, or a .toml file")
+flags.DEFINE_float("speed", 20.0, "wall-clock speed-up of the sim: robots this run starts")
+flags.DEFINE_string("demos", "", "prior data (RLPD): a replay store of demonstrations recorded on the same "
+                    "inventory; empty: record --num_demos scripted-expert episodes into LOGDIR/demos first")
+flags.DEFINE_bool("dense_reward", None, "sim: robots this run starts: dense shaped reward plus the success bonus "
+                  "(else 1 on success only); default: the experiment's")
+flags.DEFINE_integer("num_demos", 20, "scripted-expert episodes recorded when --demos is not given (RLPD)")
+
+
+def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
+              default_total_steps: int) -> tuple:
+    from unilab_jax.robots import inventory
+
+    try:
+        entries = inventory.parse(FLAGS.robots)
+    except inventory.InventoryError as e:
+        raise FlagError(f"--robots: {e}") from e
+    if not FLAGS.speed > 0 or FLAGS.speed == float("inf"):
+        raise FlagError(f"--speed must be positive and finite, got {FLAGS.speed}")
+    n = len(entries)
+    periodic = FLAGS.eval_every > 0
+    if not FLAGS["eval_envs"].present:
+        FLAGS.eval_envs = 1 if periodic else n
+    # machine-sized here (also for ``auto``): one worker per training robot
+    if not FLAGS["envs_per_worker"].present or FLAGS.envs_per_worker == "auto":
+        FLAGS.envs_per_worker = 1
+    if not FLAGS["num_workers"].present or FLAGS.num_workers == "auto":
+        FLAGS.num_workers = max(n - FLAGS.eval_envs, 1) if periodic else n
+    training = FLAGS.num_workers * FLAGS.envs_per_worker
+    if training > n:
+        raise FlagError(f"--num_workers={FLAGS.num_workers} x --envs_per_worker={FLAGS.envs_per_worker} "
+                        f"robots wanted, the inventory has {n}")
+    if FLAGS.eval_envs > n:
+        raise FlagError(f"--eval_envs={FLAGS.eval_envs}: the inventory has {n} robots")
+    if periodic and training + FLAGS.eval_envs > n:
+        raise FlagError(f"--eval_every: the workers hold {training} robots and evaluation needs {FLAGS.eval_envs} "
+                        f"more; the inventory has {n} (add robots or evaluate at the end only)")
+    if FLAGS.serial:
+        raise FlagError("--serial: robot tasks step robot servers from worker processes")
+    run, module, config, task_overrides = build_run(algo, task, recipe, task_recipe, default_total_steps)
+    if not run.task.startswith("robot_"):
+        raise FlagError(f"--task={run.task}: this experiment drives robots (robot_pick_place, robot_peg_insertion)")
+    if "robots" in task_overrides:
+        raise FlagError("--task_config=robots=...: give the robots with --robots")
+    prior = hasattr(config, "prior_dir")
+    if not prior and (FLAGS.demos or FLAGS["num_demos"].present):
+        raise FlagError(f"--demos / --num_demos: {algo} learns without prior data")
+    if FLAGS.demos and not os.path.isfile(os.path.join(FLAGS.demos, "index.json")):
+        raise FlagError(f"--demos={FLAGS.demos!r}: no replay store there (record one with "
+                        "python -m unilab_jax.robots.record)")
+    if prior and FLAGS.num_demos < 1:
+        raise FlagError(f"--num_demos must be positive, got {FLAGS.num_demos}")
+    return entries, (run, module, config, task_overrides)
+
+
+def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tuple[str, float]:
+    """The demonstrations folder and the robot seconds this run spent recording it (0 when given or reused)."""
+    from unilab_jax.robots import record
+
+    if FLAGS.demos:
+        return os.path.abspath(FLAGS.demos), 0.0
+    out = os.path.join(os.path.abspath(run.logdir), "demos")
+    if os.path.isfile(os.path.join(out, "index.json")):
+        return out, 0.0
+    partial = out + ".partial"  # renamed into place once complete: a crash never leaves half a recording
+    shutil.rmtree(partial, ignore_errors=True)
+    summary = record.record(addresses, run.task, FLAGS.num_demos, partial, "expert", seed=run.seed,
+                            overrides=task_overrides)
+    os.replace(partial, out)
+    print(f"demonstrations: {summary['episodes']} episodes ({summary['successes']} successful, "
+          f"{summary['transitions']} transitions, {summary['robot_seconds']:.0f} robot-s) in {out}", flush=True)
+    return out, float(summary["robot_seconds"])
+
+
+def _train(validated: tuple, dense_reward: bool) -> None:
+    from unilab_jax.robots import inventory
+    from unilab_jax.runtime.prior import PriorDataError
+    from unilab_jax.trainer import Trainer
+
+    entries, (run, module, config, task_overrides) = validated
+    robot_task = run.task.removeprefix("robot_")
+    dense = dense_reward if FLAGS.dense_reward is None else FLAGS.dense_reward
+    with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense) as inv:
+        try:
+            found = inventory.discover(inv.addresses, task=robot_task)
+        except inventory.InventoryError as e:
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
+        for robot in found:
+            print(f"robot {robot.address}: {robot.spec.name} ({robot.spec.kind}, {robot.spec.control_hz:g} Hz x "
+                  f"{robot.spec.speed:g}), health {robot.health.state}", flush=True)
+        demo_s = 0.0
+        if hasattr(config, "prior_dir"):
+            prior_dir, demo_s = _demos(inv.addresses, run, task_overrides)
+            config = dataclasses.replace(config, prior_dir=prior_dir)
+        overrides = {**task_overrides, "robots": tuple(inv.addresses)}
+        trainer = Trainer(run, module, config, overrides, start_time=PROCESS_START,
+                          eval_overrides={"min_envs": 1, "connect_timeout_s": EVAL_CONNECT_S})
+        try:
+            summary = trainer.train()
+        except PriorDataError as e:  # raised before any worker starts
+            print(f"error: --demos: {e}", file=sys.stderr)
+            sys.exit(2)
+    summary["robot_s"] = summary["env_steps"] / found[0].spec.control_hz + demo_s
+    with open(os.path.join(run.logdir, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=2)
+    print(json.dumps(summary, indent=2))
+    print(f"logs: {summary['logdir']}  checkpoints: {summary['checkpoints']}")
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt  # unwinds through Inventory, which stops the servers this run started
+
+
+def run_robot_experiment(algo: str, task: str, recipe: Mapping[str, Any], default_total_steps: int,
+                         task_recipe: Mapping[str, Any] | None = None, dense_reward: bool = True) -> None:
+    """Parses and validates the flags, starts the robots (and records demonstrations), trains, prints the summary."""
+    signal.signal(signal.SIGTERM, _terminate)
+    launch(lambda: _validate(algo, task, recipe, task_recipe or {}, default_total_steps),
+           lambda validated: _train(validated, dense_reward), errors=(ValueError,))  # config checks: exit 2

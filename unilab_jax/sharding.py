@@ -1,0 +1,135 @@
+"""Data-parallel JAX learners over the local accelerators (``--devices``), with ``jax.sharding``.
+
+A 1-D :class:`jax.sharding.Mesh` over the first N local devices, axis ``"batch"``. :class:`DataParallel`
+wraps any JAX learner whose pure update is ``learner._update(state, batch) -> (state, metrics)`` (the
+off-policy learners, PPO/APPO and their subclasses) and compiles that same function once more, with
+``jax.jit(in_shardings=(replicated, batch-sharded), out_shardings=replicated)``:
+
+* the batch is split along its batch axis, axis 1 of every field (``[U, B, ...]`` replay minibatches:
+  B; ``[T, M, ...]`` trajectories: M, the environments), so each device holds ``1/N`` of it;
+* parameters, optimizer state, normalizers and the RNG key are replicated;
+* the program is the single-device one: GSPMD partitions it, so every reduction over the batch (loss
+  means, normalizer statistics, hence gradients) becomes a per-device partial sum plus an all-reduce
+  that XLA inserts. Results equal the single-device update up to the order of float additions.
+
+No ``pmap`` and no per-device state copies: one global array per leaf, placed with ``jax.device_put``
+(``jax.device_put_replicated`` / ``device_put_sharded`` are gone in jax 0.11). One device is not wrapped
+at all (:func:`make`), so ``--devices=1`` is exactly the single-device path.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
+
+AXIS = "batch"
+# As the learners: the state is donated on accelerators only (unilab_jax/algos/ppo/learner_jax.py says why).
+DONATE_STATE = 0 if jax.default_backend() != "cpu" else ()
+
+
+def parse_devices(value: str) -> int | None:
+    """``"all"`` -> None (every local device), ``"N"`` -> N >= 1; ValueError otherwise."""
+    if value == "all":
+        return None
+    try:
+        n = int(value)
+    except ValueError:
+        raise ValueError(f"--devices={value!r}: give 'all' or a positive number of devices") from None
+    if n < 1:
+        raise ValueError(f"--devices={value!r}: give 'all' or a positive number of devices")
+    return n
+
+
+def local_devices(n: int | None) -> list[Any]:
+    """The first ``n`` local devices of JAX's default backend (all of them for None)."""
+    devices = jax.local_devices()
+    if n is None:
+        return devices
+    if n > len(devices):
+        raise ValueError(f"--devices={n}: only {len(devices)} local {jax.default_backend()} device(s) exist "
+                         f"({', '.join(str(d) for d in devices)})")
+    return devices[:n]
+
+
+def check_batch(n_devices: int, batch_axis: int, what: str) -> None:
+    """ValueError unless the batch axis splits evenly over the devices."""
+    if batch_axis % n_devices:
+        raise ValueError(f"--devices={n_devices}: {what} ({batch_axis}) must be divisible by the number of devices")
+
+
+class DataParallel:
+    """A learner updated data-parallel over ``devices`` (see the module docstring).
+
+    ``init``, ``update`` and ``weights`` behave as the wrapped learner's; ``from_numpy(array)`` places a
+    host batch field straight onto the devices, split along axis 1 (the trainer's batch sources use it in
+    place of the shim's); ``replicate(state)`` places a state read from a checkpoint.
+    """
+
+    def __init__(self, learner: Any, devices: list[Any], donate_argnums: Any = ()):
+        self.learner = learner
+        self.config, self.spec = learner.config, learner.spec
+        self.mesh = Mesh(np.asarray(devices), (AXIS,))
+        self.replicated = NamedSharding(self.mesh, P())
+        self.batch_sharding = NamedSharding(self.mesh, P(None, AXIS))
+        self._update = jax.jit(learner._update, in_shardings=(self.replicated, self.batch_sharding),
+                               out_shardings=self.replicated, donate_argnums=donate_argnums)
+
+    @property
+    def num_devices(self) -> int:
+        return self.mesh.size
+
+    def init(self, key: jax.Array) -> Any:
+        return self.replicate(self.learner.init(key))
+
+    def replicate(self, state: Any) -> Any:
+        return jax.device_put(state, self.replicated)
+
+    def from_numpy(self, array: Any) -> jax.Array:
+        return jax.device_put(array, self.batch_sharding)
+
+    def update(self, state: Any, batch: dict) -> tuple[Any, dict]:
+        """As the wrapped learner's ``update``; ``{}`` (a replay warm-up tick) is a no-op."""
+        if not batch:
+            return state, {}
+        return self._update(state, batch)
+
+    def weights(self, state: Any) -> Any:
+        return self.learner.weights(state)
+
+    def __getattr__(self, name: str) -> Any:  # trace_count, optimizers, ... of the wrapped learner
+        return getattr(self.learner, name)
+
+
+def make(learner: Any, devices: int | None) -> Any:
+    """``learner`` itself for one device (today's path, untouched), else a :class:`DataParallel` over the
+    first ``devices`` local devices (None: all)."""
+    chosen = local_devices(devices)
+    if len(chosen) == 1:
+        return learner
+    return DataParallel(learner, chosen, DONATE_STATE)
+
+
+def check_run(devices: str, platform: str, config: Any, buffer: str, num_workers: int, envs_per_worker: int) -> int:
+    """Validates ``--devices`` for a run (before any worker starts); returns the number of devices.
+
+    The batch axis that is split: a replay minibatch's ``batch_size``; a trajectory batch's environments
+    (``num_workers * envs_per_worker``, every slot of a lock-step or async collect)."""
+    n = parse_devices(devices)
+    if platform != "jax" and devices != "1":
+        raise ValueError(f"--devices={devices}: data-parallel learners are JAX's (--platform=jax)")
+    n = len(local_devices(n))
+    if buffer == "replay":
+        check_batch(n, int(config.batch_size), "batch_size")
+    else:
+        check_batch(n, num_workers * envs_per_worker, "num_workers * envs_per_worker")
+    return n
+
+
+def for_run(learner: Any, run: Any, config: Any, buffer: str) -> DataParallel | None:
+    """The :class:`DataParallel` learner of ``run.devices`` (checked), None for one device."""
+    n = check_run(run.devices, run.platform, config, buffer, run.num_workers, run.envs_per_worker)
+    return make(learner, n) if n > 1 else None
