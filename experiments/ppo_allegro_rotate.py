@@ -18,7 +18,7 @@ RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "ho
 
 # Trained on the rotation and fall terms only: with HORA's penalty scales (the task's defaults), and with a
 # tenth of them, PPO settled on a still hand within 0.6-1.5M steps and never rotated the object, while
-# without them the rotation term rose from 0 to ~0.013 per step by 0.7M steps (dev VM, README "In-hand
+# without them the rotation term rose from 0 to 0.03-0.04 per step by 2-2.5M steps (dev VM, README "In-hand
 # rotation (Allegro)"). Put the penalties back with --task_config=scale_pose_diff=-0.3 etc.
 TASK_RECIPE = {"scale_object_linvel": 0.0, "scale_pose_diff": 0.0, "scale_torque": 0.0, "scale_work": 0.0}
 
