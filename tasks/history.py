@@ -97,7 +97,7 @@ class HistoryTask(base.Task):
 
     def __getattr__(self, attr: str) -> Any:
         # Only reached for names this wrapper does not define: the base task's API (command, dr, ...).
-        if attr == "inner":
+        if attr in ("inner", "eval_tracker"):  # eval_tracker: the property above decides
             raise AttributeError(attr)
         return getattr(self.inner, attr)
 
