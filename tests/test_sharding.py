@@ -152,8 +152,11 @@ class _Stub:
 
 
 def _run_script(*args: str, tmp: str = "") -> dict:
+    # The script runs from tests/, whose tests/tasks folder would shadow the top-level ``tasks`` package
+    # for an editable install (a fresh clone): the repository root goes first on the path.
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu",
-               SHARDING_TMP=tmp)
+               SHARDING_TMP=tmp, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p))
     out = subprocess.run([sys.executable, os.path.abspath(__file__), *args], env=env, capture_output=True,
                          text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-4000:]

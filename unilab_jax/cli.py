@@ -150,6 +150,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     except ImportError as e:
         raise FlagError(f"--platform={FLAGS.platform}: its packages are not installed ({e}); "
                         f"pip install 'unilab-jax[{FLAGS.platform}]'") from e
+    if FLAGS.video_every > 0:
+        _check_video()  # first: the headless GL choice must precede every import of mujoco (the task check's too)
     task_name = FLAGS.task or task
     try:
         tasks.default_config(task_name)  # unknown names; a gym:ENV_ID that cannot be made or driven
@@ -165,8 +167,6 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     for name in ("eval_every", "checkpoint_every", "video_every"):
         if getattr(FLAGS, name) < 0:
             raise FlagError(f"--{name} must be >= 0, got {getattr(FLAGS, name)}")
-    if FLAGS.video_every:
-        _check_video()
     module = algos.get(algo)
     config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(FLAGS.config))
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
