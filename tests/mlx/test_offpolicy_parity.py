@@ -1,4 +1,4 @@
-"""The MLX off-policy learners (SAC, FastSAC, FlashSAC, TD3) against the JAX ones: same state in,
+"""The MLX off-policy learners (SAC, FastSAC, FlashSAC, SAC Flow, TD3) against the JAX ones: same state in,
 same batch, same noise, one update of U gradient steps on both, same state out.
 
 The JAX state is warmed up by one update first (non-trivial Adam moments, normalizer and reward
@@ -20,7 +20,7 @@ from mlx_helpers import assert_runs_without_jax  # noqa: E402
 from mlx_helpers import leaf_errors as _leaf_errors  # noqa: E402
 
 from tasks.base import TaskSpec  # noqa: E402
-from unilab_jax.algos.offpolicy import fastsac, flashsac, sac, td3  # noqa: E402
+from unilab_jax.algos.offpolicy import fastsac, flashsac, sac, sacflow, td3  # noqa: E402
 from unilab_jax.algos.offpolicy import learner_mlx as mlx_off  # noqa: E402
 
 SPEC = TaskSpec(name="t", obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
@@ -35,6 +35,7 @@ CASES = {
     "fastsac": (fastsac, dict(num_atoms=11, v_min=-5.0, v_max=5.0)),  # AdamW, LayerNorm critics, C51
     "flashsac": (flashsac, dict(num_atoms=11)),  # projection, reward normalisation, clipping
     "td3": (td3, dict(policy_delay=2)),
+    "sacflow": (sacflow, dict(flow_steps=2)),  # gated K-step chain; its noise is [B, (K + 1) A]
 }
 
 
@@ -59,12 +60,12 @@ def _batch(seed: int) -> dict[str, np.ndarray]:
             "reward": f32(0.5 + rng.normal(size=(U, B))), "terminated": terminated, "truncated": truncated}
 
 
-def _jax_noise(key, is_td3: bool) -> dict[str, np.ndarray]:
+def _jax_noise(key, is_td3: bool, width: int = SPEC.action_dim) -> dict[str, np.ndarray]:
     """The draws ``offpolicy_jax`` makes from ``state.key`` during one update (same jax.random calls)."""
     import jax
     import jax.numpy as jnp
 
-    shape = (B, SPEC.action_dim)
+    shape = (B, width)
     keys = jax.random.split(key, U + 1)
     if is_td3:
         return {"eps_next": np.stack([np.asarray(jax.random.normal(k, shape, jnp.float32)) for k in keys[1:]])}
@@ -100,7 +101,7 @@ def test_one_update_matches_jax(name):
     assert max(init_err.values()) == 0.0, {p: e for p, e in init_err.items() if e}
 
     js, _ = jl.update(js, {k: jnp.asarray(v) for k, v in _batch(1).items()})  # warm-up
-    noise = _jax_noise(js.key, name == "td3")
+    noise = _jax_noise(js.key, name == "td3", getattr(jl, "noise_dim", SPEC.action_dim))
     ms = mlx_off.state_from_numpy(jax.device_get(js), like)
     batch = _batch(2)
 

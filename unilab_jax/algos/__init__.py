@@ -5,7 +5,7 @@ JAX learner): algorithm name -> declaration module (``SYNC``, ``BUFFER``, ``Conf
 shim-written ``act`` for the workers; see docs/ARCHITECTURE.md) and (algorithm, platform) ->
 ``"module:factory"``, ``factory(declaration, config, spec) -> learner``. Each family keeps its
 declarations and learners in one folder: ``ppo/`` (PPO, APPO, HIM-PPO), ``offpolicy/`` (SAC, TD3,
-FastSAC, FlashSAC) and ``hora/`` (teacher and student).
+FastSAC, FlashSAC, SAC Flow) and ``hora/`` (teacher and student).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ _ALGORITHMS: dict[str, str] = {
     "td3": f"{_OFF}.td3",
     "fastsac": f"{_OFF}.fastsac",
     "flashsac": f"{_OFF}.flashsac",
+    "sacflow": f"{_OFF}.sacflow",
     "hora_teacher": f"{_HORA}.teacher",
     "hora_student": f"{_HORA}.student",
 }
@@ -38,6 +39,7 @@ _LEARNERS: dict[str, dict[str, str]] = {
     "td3": {"jax": f"{_OFF}.learner_jax:make_td3_learner", "mlx": f"{_OFF}.learner_mlx:make_td3_learner"},
     "fastsac": _SAC_FAMILY,
     "flashsac": _SAC_FAMILY,
+    "sacflow": _SAC_FAMILY,
     "hora_teacher": {"jax": f"{_HORA}.learner_jax:make_teacher_learner"},
     "hora_student": {"jax": f"{_HORA}.learner_jax:make_student_learner"},
 }

@@ -163,7 +163,10 @@ class Worker:
         # Exploration noise held for NOISE_HOLD_STEPS control steps per env (an algorithm module's
         # optional attribute; 1: a fresh draw every step). Redrawn early when an env's episode ends.
         self.noise_hold = max(int(getattr(self.algo, "NOISE_HOLD_STEPS", 1)), 1)
-        self._noise = np.zeros((self.m, self.spec.action_dim), np.float32)
+        # Standard normals per env step: the action dimension, or the algorithm's ``noise_dim(action_dim)``.
+        noise_dim = getattr(self.algo, "noise_dim", None)
+        self.noise_dim = int(noise_dim(self.spec.action_dim)) if noise_dim else self.spec.action_dim
+        self._noise = np.zeros((self.m, self.noise_dim), np.float32)
         self._noise_left = np.zeros(self.m, np.int64)  # steps each env's current draw is still held
         self.obs, self.critic_obs = self.task.reset()
         self.ep_return = np.zeros(self.m, np.float32)
@@ -339,13 +342,13 @@ class Worker:
         self.critic_obs[idx] = critic_obs
 
     def _exploration_noise(self) -> np.ndarray:
-        """Standard normal ``[M, A]``: a fresh draw every step, or each env's draw held for
+        """Standard normal ``[M, noise_dim]``: a fresh draw every step, or each env's draw held for
         ``noise_hold`` steps (vectorised: only the envs whose hold ran out draw again)."""
         if self.noise_hold <= 1:
-            return self.rng.standard_normal((self.m, self.spec.action_dim), dtype=np.float32)
+            return self.rng.standard_normal((self.m, self.noise_dim), dtype=np.float32)
         redraw = np.flatnonzero(self._noise_left <= 0)
         if redraw.size:
-            self._noise[redraw] = self.rng.standard_normal((redraw.size, self.spec.action_dim), dtype=np.float32)
+            self._noise[redraw] = self.rng.standard_normal((redraw.size, self.noise_dim), dtype=np.float32)
             self._noise_left[redraw] = self.noise_hold
         self._noise_left -= 1
         return self._noise.copy()

@@ -86,8 +86,9 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
         def step(st: SACState, xs: tuple) -> tuple[SACState, dict]:
             mb, key = xs
             k_next, k_pi = jax.random.split(key)
-            eps_next = jax.random.normal(k_next, mb["action"].shape, jnp.float32)
-            eps = jax.random.normal(k_pi, mb["action"].shape, jnp.float32)
+            shape = (mb["action"].shape[0], self.noise_dim)
+            eps_next = jax.random.normal(k_next, shape, jnp.float32)
+            eps = jax.random.normal(k_pi, shape, jnp.float32)
             # 1. critics
             (_, c_metrics), c_grads = jax.value_and_grad(algo.critic_loss, has_aux=True)(
                 st.critic, st.target_critic, st.actor, st.log_alpha, norms, mb, eps_next, cfg)

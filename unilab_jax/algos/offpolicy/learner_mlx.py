@@ -172,7 +172,7 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         step_metrics = []
         for i in range(n):
             mb = {k: v[i] for k, v in batch.items()}
-            shape = tuple(mb["action"].shape)
+            shape = (int(mb["action"].shape[0]), self.noise_dim)
             k_next, k_pi = XP.random.split(keys[i + 1], 2)
             eps_next = _noise(noise, "eps_next", i, shape, k_next)
             eps = _noise(noise, "eps", i, shape, k_pi)
