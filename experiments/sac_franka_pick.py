@@ -30,7 +30,8 @@ RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 128
           "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3, "gamma": 0.95}
 
 
-def validate():
+def validate(algo: str = "sac", recipe: dict = RECIPE):
+    """Checks the flags (the robot flags, then ``build_run``'s for ``algo`` with ``recipe``)."""
     from unilab_jax.robots import inventory
 
     try:
@@ -52,7 +53,7 @@ def validate():
         raise FlagError("--eval_every: the workers hold every robot while training; robot runs evaluate at the end")
     if FLAGS.serial:
         raise FlagError("--serial: robot tasks step robot servers from worker processes")
-    run, module, config, task_overrides = build_run("sac", "robot_pick_place", RECIPE, {}, 50_000)
+    run, module, config, task_overrides = build_run(algo, "robot_pick_place", recipe, {}, 50_000)
     if not run.task.startswith("robot_"):
         raise FlagError(f"--task={run.task}: this experiment drives robots (robot_pick_place, robot_peg_insertion)")
     if "robots" in task_overrides:
