@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from unilab_jax import algos, nets
-from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
+from unilab_jax.fields import TRAJECTORY_FIELDS, replay_fields
 from unilab_jax.metrics import MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.xp import tree_leaves
@@ -152,7 +152,7 @@ class Trainer:
             return None
         from unilab_jax.device_replay import DeviceReplay
 
-        return DeviceReplay(pool.buffer, REPLAY_FIELDS)
+        return DeviceReplay(pool.buffer, replay_fields(self.spec))
 
     def _open_replay_store(self) -> Any:
         """The persistent replay store of ``run.replay_dir`` (None when off).
@@ -167,8 +167,9 @@ class Trainer:
         from unilab_jax.runtime.replay_store import ReplayStore
 
         fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
-        store = ReplayStore(run.replay_dir, {k: fields[k] for k in REPLAY_FIELDS}, chunk_rows=run.replay_chunk_rows,
-                            max_bytes=int(run.replay_disk_gb * 1e9), info={"task": run.task, "algo": run.algo})
+        store = ReplayStore(run.replay_dir, {k: fields[k] for k in replay_fields(self.spec)},
+                            chunk_rows=run.replay_chunk_rows, max_bytes=int(run.replay_disk_gb * 1e9),
+                            info={"task": run.task, "algo": run.algo})
         problem = None
         if store.info.get("task") != run.task:
             problem = f"it holds transitions of task {store.info.get('task')!r}"
@@ -665,7 +666,7 @@ class _ReplaySource:
 
             self._spiller = RingSpiller(pool.buffer, store)
             self._tiers = TieredSampler(pool.replay_size, lambda n, rng: pool.sample(n, rng, serial_steps=0), store,
-                                        hot_fraction, REPLAY_FIELDS)
+                                        hot_fraction, replay_fields(pool.spec))
         capacity = pool.num_workers * pool.buffer.capacity
         if self._need > capacity:
             raise ValueError(f"learning_starts/batch_size ({self._need}) exceed the replay capacity ({capacity} "
@@ -742,7 +743,8 @@ class _ReplaySource:
                     pool.pump(1)  # serial mode: the env step pool.sample takes on the ring-only path
                     self._spiller.spill()
                     batch = self._tiers.sample(u, b, rng)
-                out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in REPLAY_FIELDS}
+                out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:]))
+                       for k in replay_fields(self._pool.spec)}
         self._grad_steps += u
         self._produced += 1
         scalars.update({"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1})
@@ -813,6 +815,7 @@ class _ReplaySource:
             out["episode/return"] = st["episode_return_mean"]
             out["episode/length"] = st["episode_length_mean"]
         out.update({f"reward/{k}": v for k, v in st["reward_terms"].items()})
+        out.update({f"episode/{k}": v for k, v in st["episode_metrics"].items()})
         return out
 
 

@@ -50,7 +50,7 @@ def test_two_step_chain_by_hand():
     a, log_prob = flow.flow_rollout(_const_velocity(cands, gates), noise, log_std, 2)
     s = math.exp(-1.0)
     want_a, want_lp = [], 0.0
-    for col, (a0, e1, e2) in enumerate([(1.0, 0.5, -1.0), (-2.0, 0.0, 2.0)]):
+    for a0, e1, e2 in [(1.0, 0.5, -1.0), (-2.0, 0.0, 2.0)]:  # the two action columns
         a1 = a0 + 0.5 * _sigmoid(2.0) * (1.0 - a0) + s * e1
         a2 = a1 + 0.5 * _sigmoid(-1.0) * (-3.0 - a1) + s * e2
         want_a.append(a2)

@@ -81,7 +81,7 @@ def control_layout(num_workers: int, n_terms: int, episode_window: int = EPISODE
         "worker": ((num_workers, 16), np.int64),
         "ep_return": ((num_workers, episode_window), np.float32),
         "ep_length": ((num_workers, episode_window), np.int32),
-        "term_sum": ((num_workers, max(n_terms, 1)), np.float64),
+        "term_sum": ((num_workers, max(n_terms, 1)), np.float64),  # reward terms, then episode metrics
         "timing": ((num_workers, len(TIMING)), np.float64),  # seconds spent per phase, see TIMING
         "error": ((num_workers, ERROR_BYTES), np.uint8),
     }
@@ -157,6 +157,8 @@ class Worker:
         self.task.keepalive = self._keepalive
         self._interrupted = tasks.base.StepInterrupted
         self.spec = self.task.spec
+        self._task_fields = [name for name, _, _ in getattr(self.spec, "transition_fields", ())]
+        self._episode_metrics = tuple(getattr(self.spec, "episode_metrics", ()))
         self._reset_envs = getattr(self.task, "reset_envs", None)
         self.m = args.envs_per_worker
         self.rng = np.random.default_rng(np.random.SeedSequence([args.worker_seed, 0x5EED]))
@@ -264,6 +266,11 @@ class Worker:
         t3 = time.perf_counter()
         if self._words[WAITING]:
             self._words[WAITING] = 0
+        task_extras = res.extras or {}
+        if "action" in task_extras:  # the task executed another action (an operator's) than the policy's
+            out["action"][...] = task_extras["action"]
+        for name in self._task_fields:
+            out[name][...] = task_extras[name]
         out["reward"][...] = res.reward
         out["terminated"][...] = res.terminated
         out["truncated"][...] = res.truncated
@@ -297,6 +304,8 @@ class Worker:
             ctl["ep_return"][w, pos[-window:]] = self.ep_return[done][-window:]
             ctl["ep_length"][w, pos[-window:]] = self.ep_length[done][-window:]
             self._words[EPISODES] = n0 + done.size
+            for j, name in enumerate(self._episode_metrics):  # after the reward terms' columns
+                ctl["term_sum"][w, len(self.spec.reward_terms) + j] += float(np.sum(task_extras[name][done]))
             self.ep_return[done] = 0.0
             self.ep_length[done] = 0
         self._words[STEPS] += self.m
