@@ -111,8 +111,7 @@ class RobotTask(base.Task):
                                   critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
                                   episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS,
                                   transition_fields=(("source", (), "uint8"),), episode_metrics=EPISODE_METRICS)
-        op_config = config.operator_config()
-        self.operators = [ExpertOperator(r.spec, op_config) for r in self.robots] if config.operator != "off" else []
+        self.set_operator(config.operator)
         self.steps = np.zeros(num_envs, np.int64)
         self._last = [dict[str, np.ndarray]() for _ in range(num_envs)]
         self._threads = concurrent.futures.ThreadPoolExecutor(num_envs) if num_envs > 1 else None
@@ -230,6 +229,11 @@ class RobotTask(base.Task):
         self.steps[:] = 0
         for op in self.operators:
             op.reset()
+
+    def set_operator(self, mode: str) -> None:
+        """Switches the operator channel (``off``, ``gate``, ``always``; HG-DAgger's phases); call ``reset`` next."""
+        op_config = dataclasses.replace(self.config, operator=mode).operator_config()
+        self.operators = [ExpertOperator(r.spec, op_config) for r in self.robots] if mode != "off" else []
 
     # ---- the Task contract ----------------------------------------------------------------------------
     def reset(self) -> tuple[np.ndarray, np.ndarray]:

@@ -37,6 +37,7 @@ LAYERS = [
     # L6: trainer, command lines, MJX baseline, experiment scripts
     ("unilab_jax.trainer", 6), ("unilab_jax.cli", 6), ("unilab_jax.hora_cli", 6), ("unilab_jax.mjx_train", 6),
     ("unilab_jax.mjx_cli", 6), ("unilab_jax.device_replay", 6), ("experiments.*", 6),
+    ("unilab_jax.hgdagger", 6),
 ]
 
 

@@ -62,7 +62,7 @@ def test_operator_takes_over_when_the_cube_is_dropped():
     dropped = _obs([0.5, 0.05, 0.15], obj=[0.5, 0.05, 0.02])  # back on the table
     action, by_op = op.act(dropped, policy)
     assert by_op and op.last_reason == "dropped"
-    assert action.shape == (7,) and action[6] == -1.0  # the expert starts over: gripper open above the cube
+    assert action.shape == (7,) and action[6] == -1.0  # the expert's first phase: gripper open above the cube
 
 
 def test_always_and_off_modes_and_config_checks():

@@ -8,8 +8,9 @@ policy acted on), then ``op.observe(reward)`` with the step's reward. Modes:
 * ``gate`` (HG-DAgger's gating, Kelly et al. 2019): the operator takes control when the policy leaves the
   safe region (tcp outside ``box``), drops the object it was carrying (pick-and-place), or makes no
   progress (the episode's best reward has not risen by ``stall_eps`` for ``stall_steps`` steps); it then
-  drives for ``segment_steps`` steps (the scripted expert restarts its phase machine at the takeover) and
-  hands control back. ``stall_steps`` start again at each hand-back.
+  drives for ``segment_steps`` steps and hands control back. ``stall_steps`` start again at each hand-back.
+  The scripted expert's phase machine runs on across an episode's segments (it starts over by itself
+  when the cube is not where its phase expects it).
 * ``always``: the operator drives every step (whole-episode demonstrations).
 
 Counters per episode: ``steps``, ``operator_steps``, ``takeovers``; ``rate`` = operator_steps / steps.
@@ -106,7 +107,6 @@ class ExpertOperator:
             self.last_reason = reason
             self.takeovers += 1
             self.left = self.config.segment_steps
-            self.expert.reset()
         self.operator_steps += 1
         if mode == "gate":
             self.left -= 1
