@@ -29,7 +29,7 @@ flags.DEFINE_float("speed", 20.0, "wall-clock speed-up of the sim: robots this r
 flags.DEFINE_integer("total_steps", 20_000, "robot steps of the whole run (demonstrations, rounds, evaluations)")
 flags.DEFINE_integer("seed", 0, "random seed")
 flags.DEFINE_string("logdir", None, "where metrics.jsonl, TensorBoard events and summary.json go")
-flags.DEFINE_integer("demo_episodes", 8, "operator demonstrations for the initial behaviour-cloned policy")
+flags.DEFINE_integer("demo_episodes", 12, "operator demonstrations for the initial behaviour-cloned policy")
 flags.DEFINE_integer("rounds", 6, "HG-DAgger rounds (gated collection, aggregation, refit)")
 flags.DEFINE_integer("episodes_per_round", 8, "gated episodes per round")
 flags.DEFINE_integer("eval_episodes", 12, "episodes of each evaluation of the novice alone")

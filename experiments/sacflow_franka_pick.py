@@ -19,4 +19,4 @@ FLOW_RECIPE = {**RECIPE, "flow_steps": 4}
 
 if __name__ == "__main__":
     signal.signal(signal.SIGTERM, _terminate)
-    launch(functools.partial(validate, "sacflow", FLOW_RECIPE), train)
+    launch(functools.partial(validate, "sacflow", FLOW_RECIPE), train, errors=(ValueError,))  # config checks: exit 2

@@ -48,10 +48,10 @@ from unilab_jax.algos.imitation import learner_jax as bc_jax
 class HGDaggerConfig:
     """Phases and the novice's fit (``bc``)."""
 
-    demo_episodes: int = 4
-    rounds: int = 4
+    demo_episodes: int = 12
+    rounds: int = 3
     episodes_per_round: int = 8
-    eval_episodes: int = 20
+    eval_episodes: int = 12
     max_env_steps: int | None = None  # robot steps of the whole run (None: no cap)
     bc: bc.BCConfig = bc.BCConfig()
 
