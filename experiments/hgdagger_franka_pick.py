@@ -22,10 +22,8 @@ import sys
 
 from absl import app, flags
 from absl import logging as absl_logging
+from robot_flags import report_robots, robot_entries
 
-flags.DEFINE_string("robots", "sim:franka_emika_panda", "robot inventory: comma list of sim:NAME and "
-                    "tcp://HOST:PORT, or a .toml file")
-flags.DEFINE_float("speed", 20.0, "wall-clock speed-up of the sim: robots this run starts")
 flags.DEFINE_integer("total_steps", 20_000, "robot steps of the whole run (demonstrations, rounds, evaluations)")
 flags.DEFINE_integer("seed", 0, "random seed")
 flags.DEFINE_string("logdir", None, "where metrics.jsonl, TensorBoard events and summary.json go")
@@ -40,30 +38,18 @@ flags.DEFINE_string("bc_hidden", "128,128", "behaviour-cloning MLP hidden sizes"
 FLAGS = flags.FLAGS
 
 
-class FlagError(ValueError):
-    pass
-
-
 def validate():
+    """The robot inventory and the loop's configuration; ``ValueError`` names a bad flag."""
     from unilab_jax.algos.imitation.bc import BCConfig
     from unilab_jax.hgdagger import HGDaggerConfig
-    from unilab_jax.robots import inventory
     from unilab_jax.robots.operator import OperatorConfig
 
-    try:
-        entries = inventory.parse(FLAGS.robots)
-    except inventory.InventoryError as e:
-        raise FlagError(f"--robots: {e}") from e
-    if not FLAGS.speed > 0 or FLAGS.speed == float("inf"):
-        raise FlagError(f"--speed must be positive and finite, got {FLAGS.speed}")
-    try:
-        hidden = tuple(int(h) for h in FLAGS.bc_hidden.split(","))
-        config = HGDaggerConfig(demo_episodes=FLAGS.demo_episodes, rounds=FLAGS.rounds,
-                                episodes_per_round=FLAGS.episodes_per_round, eval_episodes=FLAGS.eval_episodes,
-                                max_env_steps=FLAGS.total_steps, bc=BCConfig(hidden=hidden, epochs=FLAGS.bc_epochs))
-        OperatorConfig(segment_steps=FLAGS.operator_segment, stall_steps=FLAGS.operator_stall_steps)
-    except ValueError as e:
-        raise FlagError(str(e)) from e
+    entries = robot_entries()
+    hidden = tuple(int(h) for h in FLAGS.bc_hidden.split(","))
+    config = HGDaggerConfig(demo_episodes=FLAGS.demo_episodes, rounds=FLAGS.rounds,
+                            episodes_per_round=FLAGS.episodes_per_round, eval_episodes=FLAGS.eval_episodes,
+                            max_env_steps=FLAGS.total_steps, bc=BCConfig(hidden=hidden, epochs=FLAGS.bc_epochs))
+    OperatorConfig(segment_steps=FLAGS.operator_segment, stall_steps=FLAGS.operator_stall_steps)
     return entries, config
 
 
@@ -73,7 +59,7 @@ def main(argv):
     absl_logging.set_verbosity(absl_logging.WARNING)
     try:
         entries, config = validate()
-    except FlagError as e:
+    except ValueError as e:  # a bad flag: exit 2 before any robot starts
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     import tasks
@@ -81,14 +67,7 @@ def main(argv):
     from unilab_jax.robots import inventory
 
     with inventory.Inventory(entries, "pick_place", FLAGS.speed, seed=FLAGS.seed) as inv:
-        try:
-            found = inventory.discover(inv.addresses, task="pick_place")
-        except inventory.InventoryError as e:
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(2)
-        for robot in found:
-            print(f"robot {robot.address}: {robot.spec.name} ({robot.spec.kind}, {robot.spec.control_hz:g} Hz x "
-                  f"{robot.spec.speed:g}), health {robot.health.state}", flush=True)
+        report_robots(inv.addresses, "pick_place")
         task = tasks.make("robot_pick_place", len(inv.addresses), FLAGS.seed,
                           {"robots": tuple(inv.addresses), "operator_segment": FLAGS.operator_segment,
                            "operator_stall_steps": FLAGS.operator_stall_steps})

@@ -15,15 +15,10 @@ end only, on ``--eval_envs`` (default: all) robots, once the workers have releas
 """
 
 import signal
-import sys
 
-from absl import flags
+from robot_flags import report_robots, robot_entries
 
 from unilab_jax.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
-
-flags.DEFINE_string("robots", "sim:franka_emika_panda", "robot inventory: comma list of sim:NAME and "
-                    "tcp://HOST:PORT, or a .toml file")
-flags.DEFINE_float("speed", 20.0, "wall-clock speed-up of the sim: robots this run starts")
 
 RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 128, "updates_per_call": 8,
           "publish_every": 8, "utd": 0.5, "learning_starts": 500, "replay_capacity": 200_000,
@@ -32,14 +27,10 @@ RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 128
 
 def validate(algo: str = "sac", recipe: dict = RECIPE):
     """Checks the flags (the robot flags, then ``build_run``'s for ``algo`` with ``recipe``)."""
-    from unilab_jax.robots import inventory
-
     try:
-        entries = inventory.parse(FLAGS.robots)
-    except inventory.InventoryError as e:
-        raise FlagError(f"--robots: {e}") from e
-    if not FLAGS.speed > 0 or FLAGS.speed == float("inf"):
-        raise FlagError(f"--speed must be positive and finite, got {FLAGS.speed}")
+        entries = robot_entries()
+    except ValueError as e:
+        raise FlagError(str(e)) from e
     n = len(entries)
     for name, value in (("num_workers", n), ("envs_per_worker", 1), ("eval_envs", n)):
         if not FLAGS[name].present:
@@ -70,14 +61,7 @@ def train(validated) -> None:
     entries, (run, module, config, task_overrides) = validated
     robot_task = run.task.removeprefix("robot_")
     with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed) as inv:
-        try:
-            found = inventory.discover(inv.addresses, task=robot_task)
-        except inventory.InventoryError as e:
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(2)
-        for robot in found:
-            print(f"robot {robot.address}: {robot.spec.name} ({robot.spec.kind}, {robot.spec.control_hz:g} Hz x "
-                  f"{robot.spec.speed:g}), health {robot.health.state}", flush=True)
+        report_robots(inv.addresses, robot_task)
         overrides = {**task_overrides, "robots": tuple(inv.addresses)}
         summary = Trainer(run, module, config, overrides, start_time=PROCESS_START).train()
     print(json.dumps(summary, indent=2))
