@@ -195,6 +195,8 @@ class Trainer:
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
                           overrides=self.task_overrides)
+        if hasattr(task, "set_operator"):  # the policy alone: no operator interventions while evaluating
+            task.set_operator("off")
         try:
             walking = WalkingTracker(task) if is_locomotion(task) else None
             step = walking.step if walking is not None else task.step
