@@ -31,7 +31,8 @@ Randomness: the state's key is split into ``U + 1`` keys exactly as in JAX (the 
 next state's key); SAC-family step ``i`` splits ``keys[i + 1]`` into ``(k_next, k_pi)`` and draws
 ``eps_next``/``eps`` ~ N(0, 1) of the action's shape; TD3 draws ``eps_next`` from ``keys[i + 1]``.
 MLX's normal draws differ from JAX's for the same key, so parity tests inject the JAX draws through
-``update(..., noise={"eps_next": [U, B, A], "eps": [U, B, A]})`` (TD3: ``eps_next`` only).
+``update(..., noise={"eps_next": [U, B, N], "eps": [U, B, N]})`` with N the learner's ``noise_dim`` (the
+action dimension; SAC Flow: its chain's) (TD3: ``eps_next`` only, N = A).
 
 This module imports mlx and numpy (and the shim-written ``unilab_jax`` modules) only, never jax or
 optax.
@@ -155,7 +156,7 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
                noise: Mapping[str, Any] | None = None) -> tuple[SACState, dict]:
         """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` is a no-op.
 
-        ``noise`` (testing/parity only): ``{"eps_next": [U, B, A], "eps": [U, B, A]}`` replacing the
+        ``noise`` (testing/parity only): ``{"eps_next": [U, B, N], "eps": [U, B, N]}`` (N = ``noise_dim``) replacing the
         standard-normal draws made from the state's key (the key still advances as usual).
         """
         if not batch:
