@@ -1,11 +1,23 @@
-"""One learner update, JAX vs MLX on the same machine, same batch: prints a table, writes JSON.
+"""One learner update, JAX vs MLX on the same machine, same batch, float32 vs bf16 matmuls: prints a table,
+writes JSON.
 
     python bench/learner_update.py --algos ppo fastsac --repeats 5 --out bench/results/learner_update_local.json
+    python bench/learner_update.py --algos fastsac --recipe experiments/fastsac_go1.py --platforms jax \
+        --dtypes float32 bfloat16 --out fastsac_go1.json          # on the GPU
 
-PPO: one full update (GAE targets + epochs x minibatches) on a Go1-sized trajectory batch
-([T=24, B] with Go1's observation sizes). Off-policy algorithms: one ``update`` call (``updates_per_call``
-gradient steps on [U, batch_size] samples). The first call (compilation) is reported separately;
-steady state is the median of ``--repeats`` calls, each waited on (``block_until_ready`` / ``mx.eval``).
+PPO: one full update (GAE targets + epochs x minibatches) on a trajectory batch ([T=24, B] with the task's
+observation sizes, ``--sizes``). Off-policy algorithms: one ``update`` call (``updates_per_call`` gradient
+steps on [U, batch_size] samples). The first call (compilation) is reported separately; steady state is
+the median of ``--repeats`` calls, each waited on (``block_until_ready`` / ``mx.eval``).
+
+Per row: gradient steps/s (off-policy: U per call; PPO: epochs x minibatches per update) and the achieved
+matmul TFLOP/s: the FLOPs of every ``dot_general`` in the traced float32 update (2 x output elements x
+contracted size; scans counted ``length`` times, the larger ``cond`` branch -- TD3's delayed actor step --
+counted every step; the bf16 program multiplies the same shapes), divided by the steady time. Elementwise
+work is not counted, so this is the rate of the useful matrix work, comparable across dtypes.
+
+``--dtypes``: the JAX learners' ``compute_dtype`` (off-policy: the config field; PPO, which has no such
+option, is traced inside ``xp.compute_dtype`` to show what it would give).
 """
 
 from __future__ import annotations
@@ -26,15 +38,22 @@ if REPO not in sys.path:
 
 from tasks.base import TaskSpec  # noqa: E402
 from unilab_jax import algos  # noqa: E402
-from unilab_jax.config import apply_overrides  # noqa: E402
+from unilab_jax.config import apply_overrides, parse_overrides  # noqa: E402
 
-# Go1 joystick sizes (actor 48, privileged critic 123, 12 actions).
+# Observation sizes (actor, privileged critic, actions) of the locomotion tasks, as their TaskSpecs give them.
+SIZES = {"go1": (48, 123, 12), "go2": (49, 52, 12), "g1": (58, 66, 15)}
 SPEC = TaskSpec(name="go1_sizes", obs_dim=48, critic_obs_dim=123, action_dim=12, episode_length=1000, ctrl_dt=0.02,
                 reward_terms=("r",))
 
 
-def _trajectory_batch(rng: np.random.Generator, t: int, b: int) -> dict[str, np.ndarray]:
-    s, a = SPEC, SPEC.action_dim
+def _spec(sizes: str) -> TaskSpec:
+    obs, critic, act = SIZES[sizes]
+    return TaskSpec(name=f"{sizes}_sizes", obs_dim=obs, critic_obs_dim=critic, action_dim=act, episode_length=1000,
+                    ctrl_dt=0.02, reward_terms=("r",))
+
+
+def _trajectory_batch(rng: np.random.Generator, t: int, b: int, s: TaskSpec = SPEC) -> dict[str, np.ndarray]:
+    a = s.action_dim
     f = np.float32
     return {"obs": rng.normal(size=(t, b, s.obs_dim)).astype(f),
             "critic_obs": rng.normal(size=(t, b, s.critic_obs_dim)).astype(f),
@@ -45,8 +64,8 @@ def _trajectory_batch(rng: np.random.Generator, t: int, b: int) -> dict[str, np.
             "log_std": np.full((t, b, a), -1.0, f)}
 
 
-def _replay_batch(rng: np.random.Generator, u: int, b: int) -> dict[str, np.ndarray]:
-    s, a = SPEC, SPEC.action_dim
+def _replay_batch(rng: np.random.Generator, u: int, b: int, s: TaskSpec = SPEC) -> dict[str, np.ndarray]:
+    a = s.action_dim
     f = np.float32
     return {"obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
             "critic_obs": rng.normal(size=(u, b, s.critic_obs_dim)).astype(f),
@@ -68,18 +87,78 @@ def _sync(platform_name: str, tree) -> None:
         mx.eval([v for _, v in tree_flatten(tree)])
 
 
-def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config,
-            profile_dir: str = "") -> dict[str, float]:
+def _subjaxprs(value):
+    """The jaxprs held by an equation parameter (a jaxpr, a closed jaxpr, or tuples/lists of them; recognised by
+    their attributes, which are stable across jax versions, unlike the classes' import paths)."""
+    if hasattr(value, "eqns"):
+        yield value
+    elif hasattr(getattr(value, "jaxpr", None), "eqns"):
+        yield value.jaxpr
+    elif isinstance(value, tuple | list):
+        for v in value:
+            yield from _subjaxprs(v)
+
+
+def jaxpr_matmul_flops(jaxpr) -> float:
+    """FLOPs of the ``dot_general`` equations of ``jaxpr``: 2 x output elements x contracted size; a scan's
+    body counts ``length`` times, a ``cond`` its most expensive branch, other sub-jaxprs (pjit, custom
+    derivatives, remat) once."""
+    total = 0.0
+    for eqn in jaxpr.eqns:
+        name = eqn.primitive.name
+        if name == "dot_general":
+            (lhs_contract, _), _ = eqn.params["dimension_numbers"]
+            lhs = eqn.invars[0].aval.shape
+            total += 2.0 * float(np.prod(eqn.outvars[0].aval.shape)) * float(np.prod([lhs[d] for d in lhs_contract]))
+            continue
+        subs = [jaxpr_matmul_flops(j) for v in eqn.params.values() for j in _subjaxprs(v)]
+        if not subs:
+            continue
+        if name == "cond":
+            total += max(subs)
+        elif name == "scan":
+            total += eqn.params["length"] * sum(subs)
+        else:
+            total += sum(subs)
+    return total
+
+
+def update_flops(fn, *args) -> float:
+    """Matmul FLOPs of one call ``fn(*args)`` (traced, not run)."""
+    import jax
+
+    return jaxpr_matmul_flops(jax.make_jaxpr(fn)(*args).jaxpr)
+
+
+def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config, profile_dir: str = "",
+            spec: TaskSpec = SPEC, dtype: str = "float32") -> dict[str, float]:
+    """First-call and steady seconds of ``learner.update`` and, on JAX, its matmul FLOPs. ``dtype`` is the
+    compute dtype: off-policy configs carry it; PPO's update is traced inside ``xp.compute_dtype``."""
+    import contextlib
+    import dataclasses
+
     from unilab_jax import xp as shim
 
     xp = shim.get(platform_name)
-    learner = algos.get(algo).make_learner(platform_name, config, SPEC)
+    if hasattr(config, "compute_dtype"):
+        config = dataclasses.replace(config, compute_dtype=dtype)
+        scope = contextlib.nullcontext()
+    elif dtype != "float32" and platform_name == "jax":
+        scope = xp.compute_dtype(dtype)
+    elif dtype != "float32":
+        raise ValueError(f"{algo} on {platform_name} has no {dtype} path")
+    else:
+        scope = contextlib.nullcontext()
+    learner = algos.get(algo).make_learner(platform_name, config, spec)
     state = learner.init(xp.random.key(0))
     batch = {k: xp.from_numpy(v) for k, v in batch_np.items()}
-    t0 = time.perf_counter()
-    state, metrics = learner.update(state, batch)
-    _sync(platform_name, (state, metrics))
-    first = time.perf_counter() - t0
+    # The float32 program's matmul FLOPs (the bf16 one multiplies the same shapes).
+    flops = update_flops(learner._update, state, batch) if platform_name == "jax" else None
+    with scope:  # the first call traces the update
+        t0 = time.perf_counter()
+        state, metrics = learner.update(state, batch)
+        _sync(platform_name, (state, metrics))
+        first = time.perf_counter() - t0
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -89,11 +168,14 @@ def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config,
     if profile_dir and platform_name == "jax":
         import jax
 
-        with jax.profiler.trace(os.path.join(profile_dir, algo), create_perfetto_trace=True):
+        with jax.profiler.trace(os.path.join(profile_dir, f"{algo}_{dtype}"), create_perfetto_trace=True):
             for _ in range(3):
                 state, metrics = learner.update(state, batch)
             _sync(platform_name, (state, metrics))
-    return {"first_call_s": first, "steady_s": float(np.median(times)), "repeats": repeats}
+    steady = float(np.median(times))
+    return {"first_call_s": first, "steady_s": steady, "repeats": repeats, "matmul_gflop_per_call":
+            flops / 1e9 if flops is not None else None,
+            "matmul_tflops_per_s": flops / steady / 1e12 if flops is not None else None}
 
 
 def _recipe(path: str) -> dict:
@@ -102,7 +184,12 @@ def _recipe(path: str) -> dict:
 
     spec = importlib.util.spec_from_file_location("_bench_recipe", path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    folder = os.path.dirname(os.path.abspath(path))
+    sys.path.insert(0, folder)  # recipes build on each other (flashsac_go2 imports flashsac_go1's)
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(folder)
     return dict(module.RECIPE)
 
 
@@ -110,39 +197,52 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algos", nargs="+", default=["ppo"])
     ap.add_argument("--platforms", nargs="+", default=["jax", "mlx"])
+    ap.add_argument("--dtypes", nargs="+", default=["float32"], choices=["float32", "bfloat16"],
+                    help="JAX compute dtypes to measure (MLX: float32 only)")
+    ap.add_argument("--sizes", default="go1", choices=sorted(SIZES), help="task observation / action sizes")
     ap.add_argument("--ppo_envs", type=int, default=1024, help="B of the PPO batch [24, B]")
     ap.add_argument("--offpolicy_batch", type=int, default=4096)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--recipe", help="experiment script (e.g. experiments/fastsac_go1.py) whose RECIPE overrides the "
                     "defaults of the algorithms named by --algos (its batch_size wins over --offpolicy_batch)")
-    ap.add_argument("--profile_dir", default="", help="JAX: also trace 3 steady calls per algorithm with "
-                    "jax.profiler into DIR/<algo> (TensorBoard/XProf trace plus a Perfetto JSON)")
+    ap.add_argument("--config", action="append", default=[], help="algorithm override key=value after the recipe "
+                    "(repeatable), e.g. updates_per_call=32")
+    ap.add_argument("--profile_dir", default="", help="JAX: also trace 3 steady calls per algorithm and dtype with "
+                    "jax.profiler into DIR/<algo>_<dtype> (TensorBoard/XProf trace plus a Perfetto JSON)")
     ap.add_argument("--out", default=os.path.join(REPO, "bench", "results", "learner_update_local.json"))
     args = ap.parse_args()
-    recipe = _recipe(args.recipe) if args.recipe else {}
+    recipe = {**(_recipe(args.recipe) if args.recipe else {}), **parse_overrides(args.config)}
+    spec = _spec(args.sizes)
     rng = np.random.default_rng(0)
     rows = []
     for algo in args.algos:
         module = algos.get(algo)
         if module.BUFFER == "trajectory":
             config = apply_overrides(module.Config(), recipe)
-            batch = _trajectory_batch(rng, config.horizon, args.ppo_envs)
+            batch = _trajectory_batch(rng, config.horizon, args.ppo_envs, spec)
+            steps = config.num_epochs * config.num_minibatches
             shape = f"[{config.horizon}, {args.ppo_envs}], {config.num_epochs}x{config.num_minibatches} minibatches"
         else:
             config = apply_overrides(module.Config(), {"batch_size": args.offpolicy_batch, **recipe})
-            batch = _replay_batch(rng, config.updates_per_call, config.batch_size)
+            batch = _replay_batch(rng, config.updates_per_call, config.batch_size, spec)
+            steps = config.updates_per_call
             shape = f"[{config.updates_per_call}, {config.batch_size}] ({config.updates_per_call} gradient steps)"
         for plat in args.platforms:
-            result = measure(algo, plat, batch, args.repeats, config, args.profile_dir)
-            rows.append({"algo": algo, "platform": plat, "batch": shape, **result})
-            print(f"{algo:9s} {plat:4s} {shape:48s} first {result['first_call_s']:7.2f} s  "
-                  f"steady {result['steady_s'] * 1e3:9.1f} ms", flush=True)
+            for dtype in args.dtypes if plat == "jax" else ["float32"]:
+                result = measure(algo, plat, batch, args.repeats, config, args.profile_dir, spec, dtype)
+                result["gradient_steps_per_s"] = steps / result["steady_s"]
+                rows.append({"algo": algo, "platform": plat, "dtype": dtype, "sizes": args.sizes, "batch": shape,
+                             "gradient_steps_per_call": steps, **result})
+                tf = result["matmul_tflops_per_s"]
+                print(f"{algo:9s} {plat:4s} {dtype:8s} {shape:48s} first {result['first_call_s']:7.2f} s  "
+                      f"steady {result['steady_s'] * 1e3:9.1f} ms  {result['gradient_steps_per_s']:8.1f} grad steps/s"
+                      + (f"  {tf:6.1f} matmul TFLOP/s" if tf is not None else ""), flush=True)
     import jax
 
     machine = {"hostname": platform.node(), "date": datetime.datetime.now(datetime.timezone.utc).isoformat(),
                "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
                "python": platform.python_version(), "jax": jax.__version__, "jax_devices": str(jax.devices()),
-               "recipe": args.recipe, "xla_flags": os.environ.get("XLA_FLAGS", "")}
+               "recipe": args.recipe, "config": args.config, "xla_flags": os.environ.get("XLA_FLAGS", "")}
     if "mlx" in args.platforms:
         import mlx.core as mx
 

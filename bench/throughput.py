@@ -61,6 +61,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--seconds", type=float, default=20.0, help="timed window of each phase")
     ap.add_argument("--warmup", type=float, default=3.0, help="untimed seconds before each pool window")
     ap.add_argument("--publish_every", type=float, default=0.5, help="seconds between dummy weight publishes")
+    ap.add_argument("--pin_cpus", type=int, default=-1, help="pool phase: -1 no worker affinity; K >= 0: workers "
+                    "pinned to their shares of the usable cores except the first K (runtime/pool.py cpu_placement)")
     ap.add_argument("--skip_ceiling", action="store_true")
     ap.add_argument("--skip_task", action="store_true")
     ap.add_argument("--skip_pool", action="store_true")
@@ -212,6 +214,7 @@ def pool_throughput(args, overrides: dict) -> dict:
 
     import tasks
     from unilab_jax.runtime import WorkerPool
+    from unilab_jax.runtime.pool import cpu_placement
 
     probe = tasks.make(args.task, 1, 0, overrides)
     spec = probe.spec
@@ -220,7 +223,8 @@ def pool_throughput(args, overrides: dict) -> dict:
     t_build = time.monotonic()
     pool = WorkerPool(args.task, overrides, num_workers=args.num_workers, envs_per_worker=args.envs_per_worker,
                       seed=0, algo_module="bench_policy", weight_template=weights, horizon=args.horizon,
-                      slots_per_worker=args.slots_per_worker)
+                      slots_per_worker=args.slots_per_worker,
+                      worker_cpus=cpu_placement(args.num_workers, args.pin_cpus) if args.pin_cpus >= 0 else None)
     try:
         pool.start(timeout=600)
         startup = time.monotonic() - t_build

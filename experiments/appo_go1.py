@@ -6,6 +6,8 @@
 from ppo_go1 import RECIPE  # same hyperparameters as PPO; only the sync mode and targets differ
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 if __name__ == "__main__":
-    run_experiment(algo="appo", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=100_000_000)
+    run_experiment(algo="appo", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=100_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 15, 128))

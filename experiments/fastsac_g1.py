@@ -15,8 +15,10 @@ joint (the bounded log-std head at its midpoint).
 from fastsac_go1 import RECIPE as GO1_RECIPE  # FastSAC's recipe; only the support differs
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 RECIPE = {**GO1_RECIPE, "v_min": -2.0, "v_max": 3.0}
 
 if __name__ == "__main__":
-    run_experiment(algo="fastsac", task="g1_walk_flat", recipe=RECIPE, default_total_steps=100_000_000)
+    run_experiment(algo="fastsac", task="g1_walk_flat", recipe=RECIPE, default_total_steps=100_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 16, 64))

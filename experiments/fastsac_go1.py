@@ -11,6 +11,7 @@ policy std 0.22 per joint (see sac_go1.py): small, as Go1's clipped reward needs
 """
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 8192,
           "utd": 8 / 1024, "updates_per_call": 8, "publish_every": 8, "replay_capacity": 2_097_152,
@@ -18,4 +19,5 @@ RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "b
           "v_min": -0.5, "v_max": 1.5, "critic_layer_norm": True, "weight_decay": 0.1}
 
 if __name__ == "__main__":
-    run_experiment(algo="fastsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000)
+    run_experiment(algo="fastsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 16, 64))

@@ -15,6 +15,7 @@ at 0.001 and the initial policy std is ~0.2 per joint (small, as Go1's clipped r
 """
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (256, 256, 256), "critic_hidden": (512, 512, 512), "batch_size": 8192,
           "utd": 2 / 1024, "updates_per_call": 4, "publish_every": 4, "replay_capacity": 2_097_152,
@@ -22,4 +23,5 @@ RECIPE = {"actor_hidden": (256, 256, 256), "critic_hidden": (512, 512, 512), "ba
           "num_atoms": 101, "v_min": -0.5, "v_max": 1.5, "max_grad_norm": 1.0}
 
 if __name__ == "__main__":
-    run_experiment(algo="flashsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000)
+    run_experiment(algo="flashsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 16, 64))

@@ -8,6 +8,7 @@ estimates the base velocity (removed from the frames) and a contrastive latent.
 from ppo_go1 import RECIPE as PPO_RECIPE
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 # Frames: Go1's 48-dim observation without the measured body-frame linear velocity (columns 0-2), as
 # in HIMLoco, whose robots do not measure it; the estimator's target is the clean body-frame linear
@@ -17,4 +18,5 @@ RECIPE = {**PPO_RECIPE, "velocity_cols": (57, 58, 59)}
 
 if __name__ == "__main__":
     run_experiment(algo="him_ppo", task="go1_joystick_flat_hist", recipe=RECIPE, task_recipe=TASK_RECIPE,
-                   default_total_steps=100_000_000)
+                   default_total_steps=100_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 15, 128))

@@ -4,6 +4,8 @@ that infers them from 30 frames of proprioceptive history; one command (see unil
     python experiments/hora_go1.py --num_workers=15 --envs_per_worker=128 --teacher_steps=40000000 \\
         --student_steps=10000000 --logdir=runs/hora_go1
     python experiments/hora_go1.py --logdir=runs/hora_go1 --resume   # continues the stage that was cut off
+
+Sized for a 16-core H100 host (15 workers x 128 envs, as above; the flag defaults are 2 x 32).
 """
 
 from ppo_go1 import RECIPE as PPO_RECIPE

@@ -4,6 +4,7 @@
 """
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "horizon": 24,
           "learning_rate": 1e-3, "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.01, "gamma": 0.97,
@@ -13,4 +14,5 @@ RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "ho
           "init_log_std": -1.0}
 
 if __name__ == "__main__":
-    run_experiment(algo="ppo", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=100_000_000)
+    run_experiment(algo="ppo", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=100_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 16, 64))

@@ -13,6 +13,7 @@ never starts (bench/results/README.md).
 """
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 4096,
           "utd": 8 / 1024, "updates_per_call": 8, "publish_every": 8, "replay_capacity": 2_097_152,
@@ -20,4 +21,5 @@ RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "b
           "actor_learning_rate": 3e-4, "critic_learning_rate": 3e-4, "alpha_learning_rate": 3e-4}
 
 if __name__ == "__main__":
-    run_experiment(algo="sac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000)
+    run_experiment(algo="sac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 16, 64))

@@ -2,6 +2,8 @@
 
     python experiments/td3_cartpole.py --logdir=runs/td3_cartpole
 
+Sized for the 2-core dev VM (the flag defaults, 2 workers x 32 envs).
+
 Measured on the 2-core dev VM (2 workers x 16 envs, 8 runs over seeds 0-4): the best evaluation
 passes 150 after 200-550k env steps (3-8k gradient steps, 8-25 s of wall time) in 7 of 8 runs; at 600k
 the return is 115-200 (seed 0: 195-200). TD3 is noisier than SAC here: its failures are mostly the

@@ -10,6 +10,7 @@ critic ensemble of two on one GPU). Exploration std 0.2: the low end of FastTD3'
 """
 
 from unilab_jax.cli import run_experiment
+from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 8192,
           "utd": 8 / 1024, "updates_per_call": 8, "publish_every": 8, "replay_capacity": 2_097_152,
@@ -18,4 +19,5 @@ RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "b
           "critic_learning_rate": 3e-4}
 
 if __name__ == "__main__":
-    run_experiment(algo="td3", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000)
+    run_experiment(algo="td3", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
+                   sized_for=SizedFor("a 16-core H100 host", 16, 64))

@@ -47,6 +47,9 @@ class TaskSpec:
     # Per-episode quantities (values in ``StepOut.extras``, read where an episode ended), logged as means
     # over the episodes ended since the previous log (``WorkerPool.stats()["episode_metrics"]``).
     episode_metrics: tuple[str, ...] = ()
+    # True where an episode terminates only by succeeding (the robot tasks): episode and evaluation logs
+    # then report the terminated fraction as ``success_rate``.
+    success_on_termination: bool = False
 
 
 class StepOut(NamedTuple):
@@ -105,6 +108,15 @@ class Task(abc.ABC):
 
     def close(self) -> None:  # noqa: B027  (optional hook, not abstract)
         """Releases resources (nothing by default)."""
+
+    def render_scene(self, env: int = 0) -> tuple[Any, Any]:
+        """``(mujoco.MjModel, mujoco.MjData)`` of env ``env`` in its current state (kinematics computed), for
+        ``mujoco.Renderer`` (``unilab_jax.play``, training clips). Tasks that step a ``BatchedSim`` in
+        ``self.sim`` get it from there; a task without one overrides this or cannot be rendered."""
+        sim = getattr(self, "sim", None)
+        if sim is None:
+            raise NotImplementedError(f"task {self.spec.name!r} has no MuJoCo scene to render (no render_scene)")
+        return sim.scene(env)
 
 
 def with_reward_scales(scales: Mapping[str, float]) -> Callable[[type], type]:
@@ -175,9 +187,16 @@ def names() -> list[str]:
     return sorted(_REGISTRY)
 
 
+GYM_PREFIX = "gym:"  # ``gym:ENV_ID``: a Gymnasium environment (tasks/gym_env.py), resolved by name
+
+
 def _entry(name: str) -> _Entry:
+    if name.startswith(GYM_PREFIX) and name not in _REGISTRY:
+        env_id = name[len(GYM_PREFIX):]
+        return _Entry(_ByName("tasks.gym_env:make", env_id), _ByName("tasks.gym_env:default_config", env_id))
     if name not in _REGISTRY:
-        raise ValueError(f"unknown task {name!r}; registered tasks: {names()}")
+        raise ValueError(f"unknown task {name!r}; registered tasks: {names()} (or gym:ENV_ID for a Gymnasium "
+                         "environment)")
     return _REGISTRY[name]
 
 

@@ -100,6 +100,9 @@ class HistoryTask(base.Task):
             raise AttributeError(attr)
         return getattr(self.inner, attr)
 
+    def render_scene(self, env: int = 0) -> tuple[Any, Any]:
+        return self.inner.render_scene(env)
+
     def _pack(self, frames: np.ndarray, critic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         flat = frames.reshape(self.num_envs, -1)
         if not self._ext:

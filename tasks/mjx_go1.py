@@ -276,6 +276,11 @@ class Go1JoystickMjx:
     def _sensors(self, data: Any) -> dict:
         return gj.read_sensors(data.sensordata, self.sensor_index, self.model.nu)
 
+    def base_velocity(self, state: EnvState) -> jax.Array:
+        """[M, 3] measured body-frame (vx, vy) and yaw rate, as the CPU task's ``base_velocity`` (walking metric)."""
+        s = self._sensors(state.data)
+        return jnp.concatenate([s["local_linvel"][:, :2], s["gyro"][:, 2:3]], axis=1)
+
     def _noise(self, key: jax.Array, n: int) -> jax.Array:
         return jax.random.uniform(key, (n, self.noise_scale.shape[0]), jnp.float32, -1.0, 1.0) * self.noise_scale
 

@@ -258,6 +258,12 @@ class WalkingMjx:
         s["command"], s["last_act"] = info["command"], info["last_act"]
         return s
 
+    def base_velocity(self, state: EnvState) -> jax.Array:
+        """[M, 3] measured body-frame (vx, vy) and yaw rate, as the CPU task's ``base_velocity`` (walking metric)."""
+        sd, index = self.cpu_sensordata(state.data.sensordata), self.layout["index"]
+        (lin, _), (gyro, _) = index["local_linvel"], index["gyro"]
+        return jnp.concatenate([sd[:, lin : lin + 2], sd[:, gyro + 2 : gyro + 3]], axis=1)
+
     def _noise(self, key: jax.Array, n: int) -> jax.Array:
         return jax.random.uniform(key, (n, self.noise_scale.shape[0]), jnp.float32, -1.0, 1.0) * self.noise_scale
 

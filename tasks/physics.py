@@ -110,6 +110,7 @@ class BatchedSim:
         # One scratch MjData for set_state/forward (and rollout's single thread); per-env datas for
         # the step engine.
         self._scratch = mujoco.MjData(m)
+        self._view: mujoco.MjData | None = None  # render-only data of ``scene``, made on first use
         self._data_models = self.models if self.models is not None else [m] * M
         # Sensors are only read after the last substep, so the other substeps can run with
         # mjDSBL_SENSOR set (same dynamics, no sensor/rnePostConstraint work; the flag is toggled on
@@ -259,6 +260,18 @@ class BatchedSim:
         unstable |= ~np.isfinite(self.state).all(axis=1)
         self.warmstart[unstable] = 0.0
         return unstable
+
+    def scene(self, env: int) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """(model, data) of env ``env``: its model and a render-only MjData holding its current state with
+        kinematics computed (``mj_forward``), for ``mujoco.Renderer``. The data is reused by the next call."""
+        if not 0 <= env < self.num_envs:
+            raise IndexError(f"env {env} out of range for {self.num_envs} envs")
+        model = self._data_models[env]
+        if self._view is None:
+            self._view = mujoco.MjData(self.model)
+        mujoco.mj_setState(model, self._view, self.state[env], _FULL)
+        mujoco.mj_forward(model, self._view)
+        return model, self._view
 
     def close(self) -> None:
         if self.engine == "rollout":

@@ -59,6 +59,9 @@ class RobotTaskConfig:
     timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
     lease_s: float = 5.0
     connect_timeout_s: float = 60.0  # wait for free robots when the task is built
+    # 0: all num_envs robots must be claimed. k > 0: after connect_timeout_s go on with the robots claimed
+    # if there are at least k (num_envs shrinks to their count): evaluations on the robots that are left.
+    min_envs: int = 0
     retry_s: float = 1.0  # between attempts to reach a lost robot
     operator: str = "off"  # the operator channel: off, gate (takes over when needed) or always (demonstrations)
     operator_segment: int = 20  # control steps per takeover (gate)
@@ -74,6 +77,8 @@ class RobotTaskConfig:
             check_address(address)
         if self.episode_length < 1:
             raise ValueError(f"episode_length must be positive, got {self.episode_length}")
+        if self.min_envs < 0:
+            raise ValueError(f"min_envs must be >= 0, got {self.min_envs}")
         if self.arm not in KINDS:
             raise ValueError(f"arm must be one of {KINDS}, got {self.arm!r}")
         self.operator_config()  # checks the operator fields
@@ -110,7 +115,8 @@ class RobotTask(base.Task):
         self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
                                   critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
                                   episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS,
-                                  transition_fields=(("source", (), "uint8"),), episode_metrics=EPISODE_METRICS)
+                                  transition_fields=(("source", (), "uint8"),), episode_metrics=EPISODE_METRICS,
+                                  success_on_termination=True)
         self.set_operator(config.operator)
         self.steps = np.zeros(num_envs, np.int64)
         self._last = [dict[str, np.ndarray]() for _ in range(num_envs)]
@@ -158,6 +164,9 @@ class RobotTask(base.Task):
                         self.slots.append(slot)
             if len(self.robots) < self.num_envs:
                 if time.monotonic() > deadline:
+                    if self.config.min_envs and len(self.robots) >= self.config.min_envs:
+                        self.num_envs = len(self.robots)
+                        return
                     raise RuntimeError(f"{self.num_envs} robots wanted, {len(self.robots)} free within "
                                        f"{self.config.connect_timeout_s:.0f} s in {list(self.config.robots)}")
                 self._sleep(self.config.retry_s)

@@ -33,6 +33,8 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     evals = [r for r in rows if "eval/return" in r]
     # Locomotion evaluations carry the walking metric (velocity tracking in m/s, fall rate in [0, 1]).
     assert evals and all(r["eval/tracking_error"] > 0 and 0 <= r["eval/fall_rate"] <= 1 for r in evals)
+    # ... and the walking criterion's verdict (a 40k-step policy does not walk).
+    assert all(r["eval/yaw_rate_error"] > 0 and r["eval/walking"] == 0.0 for r in evals)
     resumed = [r["step"] for r in rows[len(rows) // 2:] if "loss/policy_loss" in r]
     # The second run continues from the saved step: its first training row follows it directly.
     train_steps = [r["step"] for r in rows if "loss/policy_loss" in r]
@@ -46,9 +48,12 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     ("--config=learning_rat=1", "unknown config key"),
     ("--task_config=no_such_key=1", "unknown config key"),
     ("--task=mars_rover", "registered tasks"),
+    ("--task=gym:CartPole-v1", "action space Discrete(2) is not a Box"),
+    ("--task=gym:NoSuchEnv-v0", "cannot be made"),
     ("--total_steps=-5", "--total_steps must be positive"),
     ("--utd_window=-1", "--utd_window must be >= 0"),
     ("--utd_window=4096", "--utd_window needs an off-policy algorithm"),
+    ("--pin_cpus=-2", "--pin_cpus must be -1 (off)"),
 ])
 def test_invalid_flags_fail_before_workers_start(tmp_path, flag, message):
     out = _run("ppo_cartpole.py", flag, f"--logdir={tmp_path / 'x'}", timeout=120)

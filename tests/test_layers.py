@@ -24,7 +24,7 @@ LAYERS = [
     # L1: kernels and utilities (no tasks, no runtime, no algorithm)
     ("unilab_jax", 1), ("unilab_jax.core", 1), ("unilab_jax.core.*", 1), ("unilab_jax.nets", 1),
     ("unilab_jax.nets_temporal", 1), ("unilab_jax.config", 1), ("unilab_jax.metrics", 1),
-    ("unilab_jax.fields", 1), ("unilab_jax.lazy", 1), ("unilab_mlx", 1), ("unilab_mlx.*", 1),
+    ("unilab_jax.fields", 1), ("unilab_jax.lazy", 1), ("unilab_jax.sizing", 1), ("unilab_mlx", 1), ("unilab_mlx.*", 1),
     # L2: tasks, the runtime (workers load the algorithm declaration by module path) and checkpoints
     ("tasks", 2), ("tasks.*", 2), ("unilab_jax.runtime", 2), ("unilab_jax.runtime.*", 2),
     ("unilab_jax.checkpoint", 2), ("unilab_jax.robots", 2), ("unilab_jax.robots.*", 2),
@@ -37,6 +37,7 @@ LAYERS = [
     # L6: trainer, command lines, MJX baseline, experiment scripts
     ("unilab_jax.trainer", 6), ("unilab_jax.cli", 6), ("unilab_jax.hora_cli", 6), ("unilab_jax.mjx_train", 6),
     ("unilab_jax.mjx_cli", 6), ("unilab_jax.device_replay", 6), ("experiments.*", 6),
+    ("unilab_jax.saved_run", 6), ("unilab_jax.play", 6), ("unilab_jax.export", 6),
     ("unilab_jax.hgdagger", 6),
 ]
 

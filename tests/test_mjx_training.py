@@ -53,6 +53,8 @@ def test_ppo_mjx_trains_and_logs(ppo_run):
     assert [r["step"] for r in evals] == [12 * M, 24 * M]  # periodic; none repeated at the end
     for r in evals:
         assert r["eval/return"] >= 0.0 and 0 < r["eval/episode_length"] <= 20 and 0 <= r["eval/fall_rate"] <= 1
+        # The walking metric over the same episodes: an untrained policy is far from the criterion.
+        assert r["eval/tracking_error"] > 0.05 and r["eval/yaw_rate_error"] > 0.05 and r["eval/walking"] == 0.0
         assert r["eval/train_wall_s"] <= r["eval/wall_s"] <= r["eval/done_wall_s"]
     assert evals[1]["eval/train_wall_s"] < evals[1]["eval/wall_s"]  # the first evaluation's time is excluded
     assert trainer._call._cache_size() == 1  # one trace for every call

@@ -1,5 +1,5 @@
 """bench/time_to_target.py: parsing a run's metrics, the report's ratios and bounds, and running a configuration
-(a stand-in experiment script) until it reaches the target."""
+(a stand-in experiment script) until it reaches its goals (walking, and the return for Go1)."""
 
 from __future__ import annotations
 
@@ -16,12 +16,15 @@ ttt = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(ttt)
 
 
-def _rows(evals, rate=1000.0, train_wall=None):
-    """Training rows every 10 s at ``rate`` env steps/s, plus eval rows (wall_s, return)."""
+def _rows(evals, rate=1000.0, train_wall=None, walking=None):
+    """Training rows every 10 s at ``rate`` env steps/s, plus eval rows (wall_s, return) with the walking numbers
+    ``walking[i]`` (tracking, yaw rate, falls; default: a policy that stands still)."""
     rows = [{"step": int(rate * t), "perf/env_steps_per_s": rate, "time/wall_s": float(t), "loss/x": 0.0}
             for t in range(10, 110, 10)]
     for i, (wall, ret) in enumerate(evals):
-        row = {"step": int(rate * wall), "eval/return": ret, "eval/wall_s": wall, "eval/done_wall_s": wall + 3}
+        row = {"step": int(rate * wall), "eval/return": ret, "eval/wall_s": wall, "eval/done_wall_s": wall + 3,
+               **dict(zip(("eval/tracking_error", "eval/yaw_rate_error", "eval/fall_rate"),
+                          walking[i] if walking else (0.5, 0.45, 0.0)))}
         if train_wall is not None:
             row["eval/train_wall_s"] = train_wall[i]
         rows.append(row)
@@ -35,11 +38,31 @@ def test_summarize_finds_first_eval_at_target():
     assert s["best_return"] == 29.0 and s["best_return_wall_s"] == 80.0
     assert s["env_steps_per_s_mean"] == pytest.approx(1000.0) and s["env_steps_per_s_median"] == 1000.0
     assert [e[3] for e in s["evals"]] == [5.0, 26.0, 24.0, 29.0]
+    assert not s["walking_reached"] and s["time_to_walking_s"] is None  # it stood still
     # The MJX loop's evaluation-excluded clock is carried through.
     m = ttt.summarize(_rows([(30.0, 25.5)], train_wall=[21.0]), target=25.0)
     assert m["time_to_target_s"] == 30.0 and m["train_time_to_target_s"] == 21.0
     miss = ttt.summarize(_rows([(30.0, 10.0)]), target=25.0)
     assert not miss["reached"] and miss["time_to_target_s"] is None and miss["best_return"] == 10.0
+
+
+def test_summarize_times_walking_by_the_criterion():
+    """Walking is the first evaluation inside every bound: return alone (or planar tracking alone) is not enough."""
+    walking = [(0.2, 0.5, 0.0),   # tracks planar velocity but not yaw rate
+               (0.2, 0.2, 0.05),  # falls 5%
+               (0.24, 0.28, 0.0),  # walks
+               (0.1, 0.1, 0.0)]
+    s = ttt.summarize(_rows([(20.0, 26.0), (40.0, 27.0), (60.0, 24.0), (80.0, 29.0)], walking=walking), target=25.0)
+    assert s["time_to_target_s"] == 20.0 and s["walking_reached"] and s["time_to_walking_s"] == 60.0
+    assert s["env_steps_at_walking"] == 60_000 and s["walking_at"]["yaw_rate_error"] == 0.28
+    assert s["evals"][2][4:] == [0.24, 0.28, 0.0]
+    # No return goal (Go2 / G1): only walking is timed.
+    g = ttt.summarize(_rows([(20.0, 300.0), (40.0, 280.0)], walking=walking[1:3]), target=None)
+    assert not g["reached"] and g["time_to_walking_s"] == 40.0
+    assert not ttt.goals_reached(_rows([(20.0, 26.0)], walking=walking[:1]), 25.0)
+    assert ttt.goals_reached(_rows([(20.0, 26.0), (40.0, 1.0)], walking=walking[1:3]), 25.0)
+    assert not ttt.goals_reached(_rows([(20.0, 20.0), (40.0, 1.0)], walking=walking[1:3]), 25.0)
+    assert ttt.goals_reached(_rows([(20.0, 20.0), (40.0, 1.0)], walking=walking[1:3]), None)
 
 
 def test_metrics_reader_waits_for_complete_lines(tmp_path):
@@ -72,7 +95,7 @@ def test_report_ratios_bounds_and_goals():
         _record("mjx_ppo", "mjx", "lockstep", 1, None, reached=False, rate=5e5),
     ]
     md, ratios = ttt.report(records)
-    h = ratios["heterogeneous_vs_mjx"]
+    h = ratios["heterogeneous_vs_mjx_return"]
     assert h["heterogeneous"] == "appo_async" and h["mjx"] == "mjx_ppo"  # the fastest of each kind
     # mjx_ppo missed the target on seed 1: it counts at its 540 s budget, so its mean is a lower bound.
     assert h["speedup"] == pytest.approx(((520 + 540) / 2) / 190) and h["relation"] == ">="
@@ -80,12 +103,32 @@ def test_report_ratios_bounds_and_goals():
     assert not h["met"] and h["throughput_ratio"] == pytest.approx(8e4 / 5e5)
     a = ratios["async_vs_lockstep"]
     assert a["speedup"] == pytest.approx(320 / 190) and a["relation"] == "=" and a["met"]
-    assert "| mjx_ppo | mjx | 2 (1) | >= 530 | 520, 540 |" in md
+    assert "| mjx_ppo | mjx | - | - | - | - | - | 2 (1) | >= 530 | 520, 540 |" in md  # no walking numbers
     assert "goal >= 1.5x: met" in md and "goal >= 3x: not met" in md and "at least 2.79x" in md
     assert "NVIDIA H100" in md
     # Choosing the configuration by name.
     _, named = ttt.report(records, het_best="ppo_lockstep")
-    assert named["heterogeneous_vs_mjx"]["speedup"] == pytest.approx(530 / 320)
+    assert named["heterogeneous_vs_mjx_return"]["speedup"] == pytest.approx(530 / 320)
+    assert "heterogeneous_vs_mjx_walking" not in named
+
+
+def test_report_walking_goal_and_configs_without_a_return_target():
+    go2 = {**_record("go2_flashsac", "heterogeneous", "async", 0, None, reached=False), "target": None,
+           "walking_reached": True, "time_to_walking_s": 70.0, "train_time_to_walking_s": 70.0,
+           "env_steps_at_walking": 9e6}
+    go2_miss = {**go2, "seed": 1, "walking_reached": False, "time_to_walking_s": None}
+    mjx = {**_record("mjx_ppo", "mjx", "lockstep", 0, 200.0), "walking_reached": True, "time_to_walking_s": 280.0,
+           "train_time_to_walking_s": 250.0, "env_steps_at_walking": 9e7}
+    md, ratios = ttt.report([go2, go2_miss, mjx])
+    assert "| go2_flashsac | heterogeneous | 2 (1) | >= 305 | 70, 540 | >= 305 | 9.0M | - | - |" in md
+    w = ratios["heterogeneous_vs_mjx_walking"]
+    assert w["heterogeneous"] == "go2_flashsac" and w["relation"] == "<=" and w["speedup"] == pytest.approx(280 / 305)
+    assert "heterogeneous_vs_mjx_return" not in ratios  # go2 has no return goal
+    # A record from before the criterion is judged from its curve when that holds the walking numbers.
+    old = {**_record("fastsac_async", "heterogeneous", "async", 0, 150.0),
+           "evals": [[1e6, 100.0, 100.0, 20.0, 0.3, 0.2, 0.0], [2e6, 130.0, 130.0, 26.0, 0.2, 0.2, 0.0]]}
+    agg = ttt.aggregate([old])["fastsac_async"]
+    assert agg["walking"]["time_s"] == 130.0 and agg["return"]["time_s"] == 150.0
 
 
 def test_report_separates_runs_of_one_configuration_at_different_commits():
@@ -93,8 +136,8 @@ def test_report_separates_runs_of_one_configuration_at_different_commits():
     new = _record("fastsac_async", "heterogeneous", "async", 0, 160.0, rate=9e4)
     old["git_commit"], new["git_commit"] = "a" * 40, "b" * 40
     md, _ = ttt.report([old, new, _record("mjx_ppo", "mjx", "lockstep", 0, 200.0, rate=5e5)])
-    assert "| fastsac_async @ aaaaaaa | heterogeneous | 1 (0) |" in md
-    assert "| fastsac_async @ bbbbbbb | heterogeneous | 1 (1) | 160 |" in md
+    assert "| fastsac_async @ aaaaaaa | heterogeneous | - | - | - | - | - | 1 (0) |" in md
+    assert "| fastsac_async @ bbbbbbb | heterogeneous | - | - | - | - | - | 1 (1) | 160 |" in md
     # One commit only: the plain configuration name.
     md, _ = ttt.report([new, _record("mjx_ppo", "mjx", "lockstep", 0, 200.0, rate=5e5)])
     assert "| fastsac_async | heterogeneous |" in md
@@ -112,23 +155,27 @@ FAKE_EXPERIMENT = textwrap.dedent('''
         for i, ret in enumerate([3.0, 12.0, 27.0, 30.0]):
             step, wall = 1000 * (i + 1), i + 1.0
             f.write(json.dumps({"step": step, "perf/env_steps_per_s": 500.0, "time/wall_s": wall}) + "\\n")
-            f.write(json.dumps({"step": step, "eval/return": ret + args.seed, "eval/wall_s": wall}) + "\\n")
+            f.write(json.dumps({"step": step, "eval/return": ret + args.seed, "eval/wall_s": wall,
+                                "eval/tracking_error": 0.2, "eval/yaw_rate_error": 0.6 - 0.1 * i,
+                                "eval/fall_rate": 0.0}) + "\\n")
             f.flush()
             time.sleep(0.3)
     time.sleep(300)
 ''')
 
 
-def test_run_one_stops_at_target_and_appends(tmp_path):
+def test_run_one_stops_at_its_goals_and_appends(tmp_path):
     script = tmp_path / "fake_experiment.py"
     script.write_text(FAKE_EXPERIMENT)
     out = str(tmp_path / "results.json")
     args = ttt.parse_args(["--only", "mjx_ppo", "--max_seconds", "60", "--runs_dir", str(tmp_path / "runs"),
                            "--out", out])
-    cfg = {"kind": "mjx", "sync": "lockstep", "script": str(script), "eval_every": 1000}
+    cfg = {"kind": "mjx", "sync": "lockstep", "script": str(script), "eval_every": 1000, "return_target": True}
     record = ttt.run_one("fake", 0, args, cfg=cfg, poll_s=0.1)
-    assert record["stopped_by"] == "target" and record["reached"]
+    # return 27 >= 25 at the 3rd evaluation, yaw-rate error 0.3 (walking) at the 4th: it runs on to both.
+    assert record["stopped_by"] == "target" and record["reached"] and record["walking_reached"]
     assert record["time_to_target_s"] == 3.0 and record["env_steps_at_target"] == 3000
+    assert record["time_to_walking_s"] == 4.0 and record["walking_criterion"]["max_yaw_rate_error"] == 0.3
     assert record["bench_wall_s"] < 30 and record["returncode"] is not None  # stopped, not waited out
     assert "--max_seconds=60.0" in record["command"] and "--seed=0" in record["command"]
     record.update(machine=ttt.machine_info(), git_commit=ttt.git_commit(), source_digest=ttt.source_digest())
@@ -157,5 +204,9 @@ def test_command_sizes_heterogeneous_runs_per_config():
     assert "--envs_per_worker=64" in flags("flashsac_async") and "--envs_per_worker=64" in flags("fastsac_async")
     assert "--envs_per_worker=128" in flags("ppo_lockstep")
     assert "--envs_per_worker=32" in flags("fastsac_async", ["--envs_per_worker", "32"])
+    # Off-policy and Go2 / G1 configs evaluate 64 episodes (the falls bound allows one), PPO 32.
+    assert "--eval_envs=64" in flags("go2_flashsac") and "--eval_envs=64" in flags("g1_fastsac")
+    assert "--eval_envs=32" in flags("ppo_lockstep") and "--eval_envs=16" in flags("g1_fastsac", ["--eval_envs", "16"])
+    assert flags("g1_fastsac")[1].endswith("experiments/fastsac_g1.py") and "--utd_mode=free" in flags("go2_flashsac")
     mjx = flags("mjx_ppo", ["--max_seconds", "100"])
     assert "--max_seconds=100.0" in mjx and not any(f.startswith("--num_workers") for f in mjx)

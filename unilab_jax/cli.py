@@ -3,7 +3,8 @@
 An experiment is a few lines::
 
     from unilab_jax.cli import run_experiment
-    run_experiment(algo="ppo", task="go1_joystick_flat", recipe={"horizon": 24}, flag_defaults={...})
+    run_experiment(algo="ppo", task="go1_joystick_flat", recipe={"horizon": 24},
+                   sized_for=SizedFor("16-core H100 host", 16, 64))
 
 Generic overrides: ``--config key=value`` (algorithm hyperparameters) and ``--task_config key=value``
 (task parameters), repeatable; unknown keys are rejected with the list of valid ones.
@@ -21,6 +22,8 @@ from typing import Any
 from absl import app, flags
 from absl import logging as absl_logging
 
+from unilab_jax import sizing
+
 # The learner's numpy work is small (statistics, evaluation); OpenBLAS threads spinning on it would
 # steal cores from the rollout workers. Set before numpy is first imported (nothing above imports it);
 # the user's own value wins.
@@ -36,11 +39,30 @@ if "xla_gpu_enable_triton_gemm" not in os.environ.get("XLA_FLAGS", ""):
 PLATFORMS = ("jax", "mlx")
 PROCESS_START = time.time()  # time-to-target clocks count from here (imports of jax etc. included)
 
+# What a recipe without its own sizing was tuned on: the flag defaults, 2 workers x 32 envs.
+DEV_VM = sizing.SizedFor("the 2-core dev VM", 2, 32)
+
+
+class _CountOrAuto(flags.ArgumentParser):
+    """An integer or ``auto`` (unilab_jax/sizing.py); anything else fails flag parsing."""
+
+    syntactic_help = "an integer or 'auto'"
+
+    def parse(self, argument: str | int) -> int | str:
+        return sizing.parse_count(argument)
+
+    def flag_type(self) -> str:
+        return "int or auto"
+
+
 FLAGS = flags.FLAGS
 flags.DEFINE_string("platform", "jax", f"learner platform, one of {PLATFORMS}")
-flags.DEFINE_string("task", None, "registered task name (default: the experiment's task)")
-flags.DEFINE_integer("num_workers", 2, "rollout worker processes")
-flags.DEFINE_integer("envs_per_worker", 32, "MuJoCo environments stepped by each worker")
+flags.DEFINE_string("task", None, "registered task name, or gym:ENV_ID for a Gymnasium environment with Box spaces "
+                    "(default: the experiment's task)")
+flags.DEFINE(_CountOrAuto(), "num_workers", DEV_VM.num_workers, "rollout worker processes; auto: the cores the "
+             "learner does not need (the default of recipes sized for a machine)")
+flags.DEFINE(_CountOrAuto(), "envs_per_worker", DEV_VM.envs_per_worker, "MuJoCo environments stepped by each "
+             "worker; auto (the default with --num_workers=auto): the recipe's environments split over the workers")
 flags.DEFINE_integer("total_steps", None, "environment steps to train for (default: the experiment's)")
 flags.DEFINE_integer("seed", 0, "random seed")
 flags.DEFINE_string("logdir", None, "where TensorBoard events, metrics.jsonl and checkpoints go")
@@ -48,6 +70,8 @@ flags.DEFINE_bool("resume", False, "continue the run saved in --logdir")
 flags.DEFINE_integer("eval_every", 0, "env steps between deterministic evaluations (0: at the end only)")
 flags.DEFINE_integer("eval_envs", 16, "environments in each evaluation")
 flags.DEFINE_integer("checkpoint_every", 0, "env steps between checkpoints (0: at evaluations and the end)")
+flags.DEFINE_integer("video_every", 0, "env steps between clips of an evaluation episode: mp4 under <logdir>/videos "
+                     "and a frame strip in TensorBoard (0: none; headless Linux renders through EGL)")
 flags.DEFINE_bool("serial", False, "run the workers in the learner process (debugging)")
 flags.DEFINE_string("replay_dir", "", "off-policy: persistent replay store folder (write-through to disk, reopened "
                     "by --resume; empty: shared memory only)")
@@ -61,6 +85,8 @@ flags.DEFINE_enum("utd_mode", "hold", ["hold", "free"], "off-policy: hold pauses
                   "more than --utd_window env steps behind the recipe's update-to-data ratio; free never pauses them")
 flags.DEFINE_integer("utd_window", 0, "with --utd_mode=hold: env steps the workers may run ahead of the ratio "
                      "(0: four learner calls' worth)")
+flags.DEFINE_integer("pin_cpus", -1, "worker CPU affinity: -1 none; K >= 0: each worker pinned to its share of the "
+                     "usable cores except the first K, which stay free for the learner process")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
@@ -69,9 +95,40 @@ class FlagError(ValueError):
     """A bad flag value, reported before anything starts."""
 
 
+def _learner_on_cpu(platform: str) -> bool:
+    if platform == "jax":
+        import jax
+
+        return jax.default_backend() == "cpu"
+    import mlx.core as mx
+
+    return mx.default_device().type == mx.cpu
+
+
+def size_for_machine(sized_for: sizing.SizedFor | None) -> None:
+    """Resolves ``auto`` in --num_workers / --envs_per_worker (integers in FLAGS afterwards) and prints the
+    choice. --envs_per_worker left at its default is auto when --num_workers is."""
+    auto_workers = FLAGS.num_workers == sizing.AUTO
+    auto_envs = FLAGS.envs_per_worker == sizing.AUTO or (auto_workers and not FLAGS["envs_per_worker"].present)
+    if not (auto_workers or auto_envs):
+        return
+    cores, recipe = sizing.available_cores(), sized_for or DEV_VM
+    if auto_workers:
+        FLAGS.num_workers = sizing.auto_num_workers(cores, _learner_on_cpu(FLAGS.platform))
+    if FLAGS.num_workers < 1:
+        raise FlagError(f"--num_workers must be at least 1, got {FLAGS.num_workers}")
+    if auto_envs:
+        FLAGS.envs_per_worker = sizing.auto_envs_per_worker(recipe.total_envs, FLAGS.num_workers)
+    workers = f"{FLAGS.num_workers} worker{'s' if FLAGS.num_workers != 1 else ''}"
+    print(f"sized for this machine: {workers} x {FLAGS.envs_per_worker} envs ({cores} cores; the recipe was sized "
+          f"for {recipe})", flush=True)
+
+
 def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
-              default_total_steps: int) -> tuple[Any, Any, Any, dict[str, Any]]:
-    """Validates every flag; returns (RunConfig, algorithm module, algorithm config, task overrides)."""
+              default_total_steps: int,
+              sized_for: sizing.SizedFor | None = None) -> tuple[Any, Any, Any, dict[str, Any]]:
+    """Validates every flag; returns (RunConfig, algorithm module, algorithm config, task overrides).
+    ``sized_for``: what the recipe was tuned on (``auto`` sizing splits its environments; default DEV_VM)."""
     import tasks
     from unilab_jax import algos
     from unilab_jax.config import apply_overrides, parse_overrides
@@ -88,17 +145,22 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError(f"--platform={FLAGS.platform}: its packages are not installed ({e}); "
                         f"pip install 'unilab-jax[{FLAGS.platform}]'") from e
     task_name = FLAGS.task or task
-    if task_name not in tasks.names():
-        raise FlagError(f"--task={task_name!r}: registered tasks are {tasks.names()}")
+    try:
+        tasks.default_config(task_name)  # unknown names; a gym:ENV_ID that cannot be made or driven
+    except ValueError as e:
+        raise FlagError(f"--task={task_name!r}: {e}") from e
+    size_for_machine(sized_for)
     for name in ("num_workers", "envs_per_worker", "eval_envs"):
         if getattr(FLAGS, name) < 1:
             raise FlagError(f"--{name} must be at least 1, got {getattr(FLAGS, name)}")
     total = FLAGS.total_steps if FLAGS.total_steps is not None else default_total_steps
     if total < 1:
         raise FlagError(f"--total_steps must be positive, got {total}")
-    for name in ("eval_every", "checkpoint_every"):
+    for name in ("eval_every", "checkpoint_every", "video_every"):
         if getattr(FLAGS, name) < 0:
             raise FlagError(f"--{name} must be >= 0, got {getattr(FLAGS, name)}")
+    if FLAGS.video_every:
+        _check_video()
     module = algos.get(algo)
     config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(FLAGS.config))
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
@@ -116,6 +178,10 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError("--replay_on_device=on needs an off-policy algorithm, --platform=jax and no --replay_dir")
     if not 0.0 <= FLAGS.replay_hot_fraction <= 1.0:
         raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {FLAGS.replay_hot_fraction}")
+    usable = len(os.sched_getaffinity(0))
+    if not -1 <= FLAGS.pin_cpus < usable:
+        raise FlagError(f"--pin_cpus must be -1 (off) or leave the workers at least one of the {usable} usable "
+                        f"cores, got {FLAGS.pin_cpus}")
     if FLAGS.utd_window < 0:
         raise FlagError(f"--utd_window must be >= 0, got {FLAGS.utd_window}")
     if FLAGS.utd_window and (module.BUFFER != "replay" or FLAGS.utd_mode != "hold"):
@@ -138,8 +204,25 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial, replay_dir=FLAGS.replay_dir,
                     replay_disk_gb=FLAGS.replay_disk_gb, replay_hot_fraction=FLAGS.replay_hot_fraction,
                     replay_chunk_rows=FLAGS.replay_chunk_rows, replay_on_device=FLAGS.replay_on_device,
-                    utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window)
+                    utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window, pin_cpus=FLAGS.pin_cpus,
+                    video_every=FLAGS.video_every)
     return run, module, config, task_overrides
+
+
+def _check_video() -> None:
+    """``--video_every``: headless GL chosen before mujoco is imported, and a frame rendered here, before anything
+    starts (in a fresh interpreter: a failed GL setup can leave a process unusable)."""
+    from unilab_jax.robots import gl
+
+    gl.prefer_headless()
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError as e:
+        raise FlagError(f"--video_every needs imageio and imageio-ffmpeg: pip install 'unilab-jax[video]' ({e})") from e
+    reason = gl.probe(os.environ.get("MUJOCO_GL", ""))
+    if reason is not None:
+        raise FlagError(f"--video_every: MuJoCo cannot render here ({reason}); on headless Linux install libegl1 "
+                        "libegl-mesa0 libgl1-mesa-dri libopengl0 (MUJOCO_GL=egl) or libosmesa6 (MUJOCO_GL=osmesa)")
 
 
 def launch(validate: Callable[[], Any], train: Callable[[Any], None],
@@ -172,8 +255,10 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
 
 
 def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None,
-                   task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000) -> None:
-    """Parses the shared flags, validates them, trains, prints the summary."""
+                   task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000,
+                   sized_for: sizing.SizedFor | None = None) -> None:
+    """Parses the shared flags, validates them, trains, prints the summary. A recipe that gives ``sized_for``
+    (what it was tuned on) defaults to ``--num_workers=auto``; one that does not, to DEV_VM's 2 x 32."""
 
     def train(parts: tuple) -> None:
         from unilab_jax.trainer import Trainer
@@ -183,4 +268,6 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
         print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
         print(f"checkpoints: {summary['checkpoints']}")
 
-    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps), train)
+    if sized_for is not None:
+        FLAGS.set_default("num_workers", sizing.AUTO)
+    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps, sized_for), train)

@@ -1,13 +1,43 @@
-"""TensorBoard scalars (tensorboardX), a JSON-lines copy of every logged row, and a rich progress bar."""
+"""TensorBoard scalars (tensorboardX), a JSON-lines copy of every logged row, a rich progress bar, and the
+walking criterion every locomotion evaluation is judged by."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
 import sys
 import threading
 import time
+
+
+@dataclasses.dataclass(frozen=True)
+class WalkingCriterion:
+    """When a locomotion policy walks: judged on ``tasks.walking.walking_metric``'s numbers (deterministic
+    policy, random commands), independent of any task's reward scaling.
+
+    A policy that stands still has tracking error = the mean commanded speed (~0.5 m/s on Go1/Go2/G1) and
+    yaw-rate error = the mean commanded yaw rate (~0.4-0.5 rad/s), so it fails both bounds.
+    """
+
+    max_tracking_error: float = 0.25  # mean |v_xy_cmd - v_xy| (m/s, body frame)
+    max_yaw_rate_error: float = 0.3  # mean |wz_cmd - wz| (rad/s)
+    max_fall_rate: float = 0.02  # fraction of the evaluated episodes that terminated
+
+    KEYS = ("tracking_error", "yaw_rate_error", "fall_rate")
+
+    def met(self, metric: dict[str, float], prefix: str = "") -> bool:
+        """Whether ``metric`` (keys ``{prefix}tracking_error``, ``{prefix}yaw_rate_error``, ``{prefix}fall_rate``)
+        meets every bound; a missing or non-finite number does not."""
+        values = [metric.get(prefix + k) for k in self.KEYS]
+        if any(v is None or not math.isfinite(float(v)) for v in values):
+            return False
+        tracking, yaw, falls = (float(v) for v in values)
+        return tracking <= self.max_tracking_error and yaw <= self.max_yaw_rate_error and falls <= self.max_fall_rate
+
+
+WALKING = WalkingCriterion()
 
 
 class MetricLogger:
@@ -29,6 +59,11 @@ class MetricLogger:
                 self._tb.add_scalar(k, v, global_step=step)
             self._jsonl.write(json.dumps({"step": int(step), **clean}) + "\n")
             self._jsonl.flush()
+
+    def image(self, step: int, tag: str, image) -> None:
+        """An [H, W, 3] uint8 image in TensorBoard's images tab."""
+        with self._lock:
+            self._tb.add_image(tag, image, global_step=step, dataformats="HWC")
 
     def close(self) -> None:
         self._tb.flush()

@@ -33,6 +33,7 @@ No checkpoints: runs are benchmark-sized.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import json
 import math
@@ -48,7 +49,7 @@ import numpy as np
 
 from unilab_jax import algos
 from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
-from unilab_jax.metrics import MetricLogger
+from unilab_jax.metrics import WALKING, MetricLogger
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.trainer import LearnerThread, stop_on_signals, wait_result
 
@@ -105,27 +106,45 @@ def make_env(task: str, num_envs: int, overrides: dict[str, Any] | None = None,
 
 def evaluate(env: EnvFns, act: Any, weights: Any, key: jax.Array) -> dict[str, float]:
     """One deterministic episode in each env: mean/std return summed until each env's first end, mean
-    length, fall rate (terminated, not truncated). ``act(weights, obs) -> action`` is jitted."""
+    length, fall rate (terminated, not truncated), and the walking metric over the same episodes
+    (``tasks.walking.WalkingTracker``'s tracking and yaw-rate errors, ``eval/walking`` by
+    ``metrics.WALKING``). ``act(weights, obs) -> action`` is jitted."""
     state = env.reset(key)
     n = env.env.num_envs
     ret, length = jnp.zeros(n), jnp.zeros(n, jnp.int32)
     alive, fell = jnp.ones(n, bool), jnp.zeros(n, bool)
+    errors = jnp.zeros(3)  # tracking error sum, yaw-rate error sum, evaluated steps
     for t in range(env.env.spec.episode_length):
+        command = state.info["command"]
         state, out = env.step(state, act(weights, state.obs))
-        ret, length, alive, fell = _accumulate(ret, length, alive, fell, out.reward, out.terminated, out.truncated)
+        ret, length, alive, fell, errors = _accumulate(ret, length, alive, fell, errors, out.reward, out.terminated,
+                                                       out.truncated, command, state, env.env.base_velocity)
         if t % 100 == 99 and not bool(jnp.any(alive)):
             break
-    ret = np.asarray(ret)
-    return {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
-            "eval/episode_length": float(np.asarray(length).mean()), "eval/fall_rate": float(np.asarray(fell).mean())}
+    ret, errors = np.asarray(ret), np.asarray(errors)
+    result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
+              "eval/episode_length": float(np.asarray(length).mean()), "eval/fall_rate": float(np.asarray(fell).mean()),
+              "eval/tracking_error": float(errors[0] / errors[2]) if errors[2] else math.nan,
+              "eval/yaw_rate_error": float(errors[1] / errors[2]) if errors[2] else math.nan}
+    result["eval/walking"] = float(WALKING.met(result, prefix="eval/"))
+    return result
 
 
-@jax.jit
-def _accumulate(ret, length, alive, fell, reward, terminated, truncated):
+@functools.partial(jax.jit, static_argnums=10)
+def _accumulate(ret, length, alive, fell, errors, reward, terminated, truncated, command, state, base_velocity):
+    """One step of ``evaluate``'s sums; a step's velocity error (``base_velocity(state)`` against the command
+    in force during the step) counts while its env is in its first episode and did not end on that step, as
+    in ``WalkingTracker``."""
+    ended = terminated | truncated
+    velocity = base_velocity(state)
+    ok = (alive & ~ended).astype(jnp.float32)
+    err = jnp.stack([jnp.linalg.norm(command[:, :2] - velocity[:, :2], axis=1), jnp.abs(command[:, 2] - velocity[:, 2]),
+                     jnp.ones_like(ok)], axis=1)
+    errors = errors + ok @ err
     ret = ret + jnp.where(alive, reward, 0.0)
     length = length + alive.astype(jnp.int32)
     fell = fell | (alive & terminated)
-    return ret, length, alive & ~(terminated | truncated), fell
+    return ret, length, alive & ~ended, fell, errors
 
 
 def _episode_stats(traj_return: jax.Array, traj_length: jax.Array, terminated: jax.Array, truncated: jax.Array,
@@ -212,8 +231,9 @@ class MjxTrainer:
             state = self.eval_env.reset(jax.random.PRNGKey(0))
             state, out = self.eval_env.step(state, self._eval_act(weights, state.obs))
             z = jnp.zeros(self.run.eval_envs)
-            jax.block_until_ready(_accumulate(z, z.astype(jnp.int32), z > 0, z > 0, out.reward, out.terminated,
-                                              out.truncated))
+            jax.block_until_ready(_accumulate(z, z.astype(jnp.int32), z > 0, z > 0, jnp.zeros(3), out.reward,
+                                              out.terminated, out.truncated, state.info["command"], state,
+                                              self.eval_env.env.base_velocity))
 
         thread = LearnerThread("jax", name="warm-eval")
         future = thread.submit(run)

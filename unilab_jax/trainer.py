@@ -36,7 +36,7 @@ import numpy as np
 
 from unilab_jax import algos, nets
 from unilab_jax.fields import TRAJECTORY_FIELDS, replay_fields
-from unilab_jax.metrics import MetricLogger, ProgressBar
+from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.xp import tree_leaves
 
@@ -59,6 +59,7 @@ class RunConfig:
     eval_every: int = 0  # env steps between evaluations (0: only at the end)
     eval_envs: int = 16
     checkpoint_every: int = 0  # env steps between checkpoints (0: at evaluations and at the end)
+    video_every: int = 0  # env steps between clips of an evaluation episode (unilab_jax.play.ClipRecorder; 0: none)
     serial: bool = False  # run the workers in-process (debugging, deterministic tests)
     # Persistent replay (off-policy algorithms; unilab_jax/runtime/replay_store.py): every transition is
     # also written to a crash-safe store in replay_dir, which --resume reopens.
@@ -74,6 +75,9 @@ class RunConfig:
     # run on (a learner slower than ``utd`` x the env rate then trains below the ratio). See _ReplaySource.
     utd_mode: str = "hold"
     utd_window: int = 0  # env steps the workers may run ahead of the ratio (0: four learner calls' worth)
+    # Worker CPU affinity: -1 none; K >= 0: workers pinned to the usable CPUs except the first K, which stay free
+    # for the learner process (runtime/pool.py cpu_placement).
+    pin_cpus: int = -1
 
 
 def _learner_platform(platform: str) -> Any:
@@ -91,14 +95,17 @@ def _donated(tree: Any) -> bool:
 class Trainer:
     _STOP_GRACE_S = 2.0  # after a stop, how long the loop still waits for the update in flight
     def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
-                 start_time: float | None = None):
+                 start_time: float | None = None, eval_overrides: dict[str, Any] | None = None):
         """``start_time``: wall clock that ``time/wall_s`` and ``eval/wall_s`` count from (the process
-        start when launched from the CLI, so compilation and worker start-up are included)."""
+        start when launched from the CLI, so compilation and worker start-up are included).
+        ``eval_overrides``: task overrides added for evaluations only (e.g. robot tasks evaluating on
+        the robots that answer, ``min_envs``)."""
         import tasks
 
         self.t0 = time.time() if start_time is None else start_time
 
         self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, task_overrides
+        self.eval_overrides = {**task_overrides, **(eval_overrides or {})}
         probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
         self.spec = probe.spec
         probe.close()
@@ -188,53 +195,41 @@ class Trainer:
 
     # -- evaluation ------------------------------------------------------------------------------
     def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
-        """Deterministic policy, one full episode in each of ``eval_envs`` environments; raises
-        :class:`StopRequested` when ``stop`` is set before it ends."""
+        """Deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the
+        task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
+        before it ends."""
         import tasks
-        from tasks.walking import WalkingTracker, is_locomotion
+        from unilab_jax.play import run_episodes
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
-                          overrides=self.task_overrides)
+                          overrides=self.eval_overrides)
         if hasattr(task, "set_operator"):  # the policy alone: no operator interventions while evaluating
             task.set_operator("off")
-        try:
-            walking = WalkingTracker(task) if is_locomotion(task) else None
-            step = walking.step if walking is not None else task.step
-            obs, _ = task.reset()
-            m = self.run.eval_envs
-            ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
-            alive = np.ones(m, dtype=bool)
-            zeros = np.zeros((m, self.spec.action_dim), np.float32)
-            for _ in range(self.spec.episode_length):
-                if stop is not None and stop.is_set():
-                    raise StopRequested("evaluation stopped")
-                action, _ = self.algo.act(weights, obs, zeros, True)
-                out = step(np.asarray(action, np.float32))
-                ret += np.where(alive, out.reward, 0.0)
-                length += alive
-                alive &= ~(out.terminated | out.truncated)
-                obs = out.obs
-                if not alive.any():
-                    break
+        zeros = np.zeros((task.num_envs, self.spec.action_dim), np.float32)
+        try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
+            _, stats = run_episodes(task, lambda obs: self.algo.act(weights, obs, zeros, True)[0], stop=stop)
         finally:
             task.close()
-        result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
-                  "eval/episode_length": float(length.mean())}
-        if walking is not None:  # velocity tracking over the same episodes, independent of reward scaling
-            metric = walking.result()
-            result.update({f"eval/{k}": metric[k] for k in ("tracking_error", "yaw_rate_error", "fall_rate")})
+        result = {f"eval/{k}": v for k, v in stats.items()}
+        if "tracking_error" in stats:  # locomotion: the walking criterion on the same episodes
+            result["eval/walking"] = float(WALKING.met(stats))  # 1: it walks
         return result
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
         from unilab_jax.checkpoint import Checkpointer
-        from unilab_jax.runtime.pool import WorkerPool
+        from unilab_jax.runtime.pool import WorkerPool, cpu_placement
 
         run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
         evaluator = _AsyncEvaluator(self, stop)
         learner = LearnerThread(run.platform)
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
+        clips = None
+        if run.video_every:
+            from unilab_jax.play import ClipRecorder
+
+            clips = ClipRecorder(self, run.video_every, counters["env_steps"])
         replay = self.algo.BUFFER == "replay"
         hold_window = self._hold_window(cfg) if replay else None
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
@@ -245,7 +240,9 @@ class Trainer:
                           horizon=getattr(cfg, "horizon", 32), serial=run.serial,
                           replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
                           if replay else 0,
-                          max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
+                          max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None,
+                          worker_cpus=cpu_placement(run.num_workers, run.pin_cpus)
+                          if run.pin_cpus >= 0 and not run.serial else None)
         ckpt = Checkpointer(self.ckpt_dir)
         restore_signals = stop_on_signals(stop)
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
@@ -283,6 +280,8 @@ class Trainer:
                                 "perf/publish_s": time.perf_counter() - t_publish})
                 scalars.update(stats["scalars"])
                 scalars.update(source.pool_scalars())
+                if self.spec.success_on_termination and "episode/terminated_fraction" in scalars:
+                    scalars["episode/success_rate"] = scalars["episode/terminated_fraction"]
                 scalars.update({"perf/env_steps_per_s": (counters["env_steps"] - steps_last) / max(now - t_last, 1e-9),
                                 "perf/learner_updates_per_s": 1.0 / max(now - t_last, 1e-9),
                                 "time/wall_s": now - t_start})
@@ -295,6 +294,8 @@ class Trainer:
                     evaluated_at = counters["env_steps"]
                     next_eval += run.eval_every
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+                if clips is not None and clips.due(counters["env_steps"]):
+                    clips.submit(learner.call(stop, self._numpy_weights, state), counters["env_steps"])
                 if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                     next_ckpt += run.checkpoint_every
@@ -319,6 +320,8 @@ class Trainer:
         if not interrupted and evaluated_at != counters["env_steps"]:
             evaluator.submit(self._numpy_weights(state), dict(counters), time.time() - t_start)
         last_eval = evaluator.close(cancel=interrupted)
+        if clips is not None:
+            clips.close(cancel=interrupted)
         self.logger.close()
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
                    "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
@@ -816,6 +819,7 @@ class _ReplaySource:
         if st["recent_episode_returns"].size:
             out["episode/return"] = st["episode_return_mean"]
             out["episode/length"] = st["episode_length_mean"]
+            out["episode/terminated_fraction"] = st["episode_terminated_fraction"]
         out.update({f"reward/{k}": v for k, v in st["reward_terms"].items()})
         out.update({f"episode/{k}": v for k, v in st["episode_metrics"].items()})
         return out

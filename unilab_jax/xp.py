@@ -21,7 +21,10 @@ its array library and adds the few things the standard lacks, with the same mean
 * ``scan(f, init, xs, reverse=False)`` over the leading axis;
 * a few numerics outside the standard: ``logsumexp``, ``softmax``, ``log_softmax``, ``softplus``,
   ``relu``, ``elu``, ``one_hot``;
-* conversion: ``asnumpy(x)`` and ``from_numpy(x)``.
+* conversion: ``asnumpy(x)`` and ``from_numpy(x)``;
+* jax only: ``with xp.compute_dtype("bfloat16"):`` makes ``xp.matmul`` of float32 arrays traced in that
+  block multiply in bfloat16 with float32 accumulation and float32 results (forward and backward), so
+  everything else (norms, softmax, losses, optimizer) stays float32 (``learner_jax``'s ``compute_dtype``).
 
 Importing this module imports numpy only. ``get("jax")`` imports jax on demand and ``get("mlx")``
 imports ``unilab_mlx``, so workers stay numpy-only and a Mac without jax can use MLX.
@@ -29,9 +32,11 @@ imports ``unilab_mlx``, so workers stay numpy-only and a Mac without jax can use
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -267,6 +272,49 @@ class _JaxRandom:
         return self._r.randint(key, shape, low, high, dtype=dtype or self._jnp.int32)
 
 
+COMPUTE_DTYPES = ("float32", "bfloat16")
+
+
+def _unbroadcast(x: Any, shape: tuple) -> Any:
+    """Sums ``x`` over the axes that broadcasting added to or widened from ``shape``."""
+    x = x.sum(axis=tuple(range(x.ndim - len(shape))))
+    widened = tuple(i for i, n in enumerate(shape) if n == 1 and x.shape[i] != 1)
+    return x.sum(axis=widened, keepdims=True) if widened else x
+
+
+def _low_precision_matmul(jax: Any, dtype: Any) -> Callable:
+    """``a @ b`` for float32 ``a [..., m, k]``, ``b [..., k, n]`` (broadcast batch axes) with the operands
+    rounded to ``dtype``, float32 accumulation and a float32 result; its gradients multiply in ``dtype``
+    the same way (the cotangent rounded once) and come back float32.
+
+    XLA's CPU backend has no bf16 x bf16 -> f32 dot: there the rounded operands are multiplied in float32,
+    which gives the same products (a product of two bf16 numbers is exact in float32)."""
+    jnp, f32 = jax.numpy, jax.numpy.float32
+    on_cpu = jax.default_backend() == "cpu"
+
+    def mm(a, b):
+        if on_cpu:
+            return jnp.matmul(a.astype(f32), b.astype(f32))
+        return jnp.matmul(a, b, preferred_element_type=f32)
+
+    @jax.custom_vjp
+    def matmul(a, b):
+        return mm(a.astype(dtype), b.astype(dtype))
+
+    def fwd(a, b):
+        a, b = a.astype(dtype), b.astype(dtype)
+        return mm(a, b), (a, b)
+
+    def bwd(res, g):
+        a, b = res
+        g = g.astype(dtype)
+        return (_unbroadcast(mm(g, jnp.swapaxes(b, -1, -2)), a.shape),
+                _unbroadcast(mm(jnp.swapaxes(a, -1, -2), g), b.shape))
+
+    matmul.defvjp(fwd, bwd)
+    return matmul
+
+
 class JaxBackend(Backend):
     name = "jax"
 
@@ -278,6 +326,28 @@ class JaxBackend(Backend):
         self.ns = jnp
         self.random = _JaxRandom(jax)
         self.float32, self.int32, self.uint32, self.bool = jnp.float32, jnp.int32, jnp.uint32, jnp.bool_
+        self._local = threading.local()  # .matmul: the low-precision matmul while compute_dtype is active
+        self._bf16_matmul = _low_precision_matmul(jax, jnp.bfloat16)
+
+    @contextlib.contextmanager
+    def compute_dtype(self, name: str) -> Iterator[None]:
+        """Within the block (this thread, at trace time), ``matmul`` of two float32 arrays of rank >= 2
+        multiplies in ``name`` ("bfloat16") with float32 accumulation and result; "float32" changes
+        nothing (the plain ``jnp.matmul``)."""
+        if name not in COMPUTE_DTYPES:
+            raise ValueError(f"compute_dtype must be one of {COMPUTE_DTYPES}, got {name!r}")
+        previous = getattr(self._local, "matmul", None)
+        self._local.matmul = self._bf16_matmul if name == "bfloat16" else None
+        try:
+            yield
+        finally:
+            self._local.matmul = previous
+
+    def matmul(self, a: Any, b: Any) -> Any:
+        low = getattr(self._local, "matmul", None)
+        if low is None or a.ndim < 2 or b.ndim < 2 or a.dtype != self.float32 or b.dtype != self.float32:
+            return self.ns.matmul(a, b)
+        return low(a, b)
 
     def owns(self, x: Any) -> bool:
         return isinstance(x, self._jax.Array)

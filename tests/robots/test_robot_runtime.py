@@ -41,6 +41,10 @@ def test_sac_franka_pick_trains_on_two_sim_robots(tmp_path):
     assert rows and rows[-1]["step"] >= 3000 and any("loss/critic_loss" in r or "loss/actor_loss" in r for r in rows)
     summary = json.load(open(logdir / "summary.json"))
     assert summary["env_steps"] >= 3000 and not summary["interrupted"] and np.isfinite(summary["eval/return"])
+    assert summary["eval/episodes"] == 2 and 0.0 <= summary["eval/success_rate"] <= 1.0
+    # Learning shows while the workers hold the robots: their episodes' success rate is logged.
+    success = [r["episode/success_rate"] for r in rows if "episode/success_rate" in r]
+    assert success and all(0.0 <= v <= 1.0 for v in success)
     assert os.listdir(logdir / "checkpoints")
     print(f"experiment: {time.perf_counter() - t:.1f} s, {summary['env_steps']} env steps")
 
@@ -187,3 +191,59 @@ def test_run_goes_on_when_a_robot_server_dies(tmp_path, serve):
     assert os.listdir(logdir / "checkpoints")
     rows = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
     assert any(r.get("perf/workers_waiting") == 1 for r in rows)  # the worker of the dead robot, logged
+
+
+def test_evaluation_goes_on_with_the_robots_that_answer(serve):
+    """A robot gone for good: a task asking for every robot fails after connect_timeout_s, one with
+    ``min_envs`` (the end-of-run evaluation of the robot experiments) runs on the robots left."""
+    alive, dead = serve("--robot=franka", *FAST), serve("--robot=ur5e", *FAST)
+    dead.kill()
+    robots = (alive.address, dead.address)
+    quick = {"robots": robots, "connect_timeout_s": 1.0, "timeout_s": 0.3, "retry_s": 0.2}
+    with pytest.raises(RuntimeError, match="2 robots wanted, 1 free"):
+        tasks.make("robot_pick_place", 2, overrides=quick)
+    task = tasks.make("robot_pick_place", 2, overrides={**quick, "min_envs": 1})
+    try:
+        assert task.num_envs == 1 and task.slots == [0]
+        obs, _ = task.reset()
+        out = task.step(np.zeros((1, task.spec.action_dim), np.float32))
+        assert obs.shape == out.obs.shape == (1, task.spec.obs_dim) and task.spec.success_on_termination
+    finally:
+        task.close()
+    with pytest.raises(RuntimeError, match="2 robots wanted, 0 free"):  # min_envs is a floor
+        tasks.make("robot_pick_place", 2, overrides={**quick, "robots": (dead.address, dead.address), "min_envs": 1})
+
+
+_LAUNCHER = """
+import time
+from unilab_jax.robots.inventory import LocalServer
+server = LocalServer("franka", "pick_place", 20.0)
+print(server.proc.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return any(line.split()[1] == "Z" for line in f if line.startswith("State:"))
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc")
+def test_local_servers_stop_when_their_launcher_is_killed():
+    """SIGKILL runs no clean-up in the launcher: the server notices it is orphaned and exits by itself."""
+    launcher = subprocess.Popen([sys.executable, "-c", _LAUNCHER], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        server_pid = int(launcher.stdout.readline())
+        assert not _gone(server_pid)
+        launcher.kill()
+        launcher.wait(10)
+        deadline = time.monotonic() + 10.0
+        while not _gone(server_pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert _gone(server_pid), "the robot server outlived its killed launcher"
+    finally:
+        launcher.kill()
+        launcher.stdout.close()

@@ -48,3 +48,11 @@ def find_gl_backend(candidates: tuple[str, ...] = CANDIDATES) -> tuple[str | Non
             return backend, reasons
         reasons.append(reason)
     return None, reasons
+
+
+def prefer_headless() -> None:
+    """On Linux, ``MUJOCO_GL=egl`` unless the variable is already set: offscreen rendering without a display
+    (a GPU driver's EGL, or Mesa's software one on CPU-only machines). Only has an effect before mujoco is
+    imported, so callers run it first (``unilab_jax.play`` on import, the CLI when ``--video_every`` is set)."""
+    if sys.platform.startswith("linux") and "mujoco" not in sys.modules:
+        os.environ.setdefault("MUJOCO_GL", "egl")

@@ -101,12 +101,14 @@ def parse(text: str) -> list[RobotEntry]:
 
 
 class LocalServer:
-    """A ``python -m unilab_jax.robots.serve`` subprocess on a free loopback port (no cameras)."""
+    """A ``python -m unilab_jax.robots.serve`` subprocess on a free loopback port (no cameras); it stops by
+    itself when the process that started it dies, even by SIGKILL (``--exit_with_parent``)."""
 
     def __init__(self, arm: str, task: str, speed: float, seed: int = 0, port: int = 0,
                  extra: tuple[str, ...] = ("--dense_reward",)):
         cmd = [sys.executable, "-m", "unilab_jax.robots.serve", f"--robot={arm}", f"--task={task}",
-               f"--speed={speed}", "--cameras=none", "--host=127.0.0.1", f"--port={port}", f"--seed={seed}", *extra]
+               f"--speed={speed}", "--cameras=none", "--host=127.0.0.1", f"--port={port}", f"--seed={seed}",
+               "--exit_with_parent", *extra]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env={**os.environ, "OMP_NUM_THREADS": "1"})
         lines: queue.Queue[str] = queue.Queue()

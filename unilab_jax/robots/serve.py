@@ -12,6 +12,7 @@ port), and exits cleanly on SIGTERM / SIGINT. With cameras and no ``MUJOCO_GL`` 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import sys
@@ -53,7 +54,19 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--max_message_bytes", type=int, default=1 << 20)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--fault", action="append", default=[], help="drop:P | stall_after:N | exit_after:N")
+    p.add_argument("--exit_with_parent", action="store_true",
+                   help="stop when the process that started this server dies (local servers of a run)")
     return p.parse_args(argv)
+
+
+def _watch_parent(parent: int, stop: threading.Event, period_s: float = 0.25) -> None:
+    """Sets ``stop`` once ``parent`` is gone: an orphan is re-parented, so ``getppid`` changes (also after a
+    SIGKILL of the parent, which runs no clean-up of its own)."""
+    while not stop.wait(period_s):
+        if os.getppid() != parent:
+            stop.set()  # first: the parent held our stdout/stderr pipes, so writing may fail now
+            with contextlib.suppress(OSError):
+                print(f"parent process {parent} is gone: stopping", file=sys.stderr, flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -85,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
+    if args.exit_with_parent:
+        threading.Thread(target=_watch_parent, args=(os.getppid(), stop), daemon=True).start()
     print(f"serving {robot.spec.name} on {server.address}", flush=True)
     try:
         server.serve(stop)

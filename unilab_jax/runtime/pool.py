@@ -53,7 +53,7 @@ import os
 import sys
 import time
 import weakref
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -161,6 +161,20 @@ def _worker_environment(threads: int) -> Iterator[None]:
                 os.environ[k] = v
 
 
+def cpu_placement(num_workers: int, learner_cores: int, cpus: Sequence[int] | None = None) -> list[list[int]]:
+    """Each worker's CPU set when the first ``learner_cores`` usable CPUs (``cpus``, default this process's
+    affinity) are left free for the learner process: the other CPUs are split into ``num_workers``
+    contiguous shares (one CPU each, shared round-robin, when there are more workers than CPUs)."""
+    cpus = sorted(os.sched_getaffinity(0) if cpus is None else cpus)
+    if not 0 <= learner_cores < len(cpus):
+        raise ValueError(f"learner_cores={learner_cores}: must leave at least one of the {len(cpus)} usable CPUs "
+                         "to the workers")
+    rest = cpus[learner_cores:]
+    if num_workers > len(rest):
+        return [[rest[i % len(rest)]] for i in range(num_workers)]
+    return [[int(c) for c in share] for share in np.array_split(rest, num_workers)]
+
+
 class _Resources:
     """What must be released at close: processes and segments (referenced by the finalizer)."""
 
@@ -213,6 +227,8 @@ class WorkerPool:
         has to exceed the slowest single env step or policy call.
       max_env_steps: replay buffers only: workers stop stepping once the pool-wide env-step count
         reaches it (see :meth:`set_step_limit`).
+      worker_cpus: per worker, the CPUs it (and the MuJoCo threads it starts) may run on
+        (``os.sched_setaffinity`` right after the spawn; :func:`cpu_placement`); None: no affinity.
     """
 
     def __init__(
@@ -235,6 +251,7 @@ class WorkerPool:
         max_restarts: int = 3,
         heartbeat_timeout: float | None = 30.0,
         max_env_steps: int | None = None,
+        worker_cpus: Sequence[Sequence[int]] | None = None,
     ):
         import tasks
 
@@ -261,6 +278,9 @@ class WorkerPool:
         self.worker_threads = int(worker_threads)
         self.max_restarts = int(max_restarts)
         self.heartbeat_timeout = None if heartbeat_timeout is None else float(heartbeat_timeout)
+        if worker_cpus is not None and len(worker_cpus) != num_workers:
+            raise ValueError(f"worker_cpus has {len(worker_cpus)} entries for {num_workers} workers")
+        self.worker_cpus = None if worker_cpus is None else [sorted(int(c) for c in cs) for cs in worker_cpus]
         if max_env_steps is not None and self.buffer_kind != "replay":
             raise ValueError("max_env_steps is for replay buffers (trajectory workers are held by their slots)")
         self.fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
@@ -352,6 +372,10 @@ class WorkerPool:
         p = self._ctx.Process(target=worker_main, args=(self._args[i],), name=f"unilab-worker-{i}", daemon=True)
         with _hidden_main(), _worker_environment(self.worker_threads):
             p.start()
+        if self.worker_cpus is not None:
+            # Before the worker imports anything (seconds): threads it starts later inherit the set.
+            with contextlib.suppress(ProcessLookupError):
+                os.sched_setaffinity(p.pid, self.worker_cpus[i])
         self._procs[i] = p
         if old in self._res.procs:
             self._res.procs[self._res.procs.index(old)] = p
@@ -641,6 +665,7 @@ class WorkerPool:
         n_ep = np.minimum(words[:, EPISODES], self._ctl["ep_return"].shape[1])
         returns = np.concatenate([self._ctl["ep_return"][i, : n_ep[i]] for i in range(self.num_workers)])
         lengths = np.concatenate([self._ctl["ep_length"][i, : n_ep[i]] for i in range(self.num_workers)])
+        terminated = np.concatenate([self._ctl["ep_terminated"][i, : n_ep[i]] for i in range(self.num_workers)])
         rows = max(term_rows - prev_rows, 1)
         terms = {name: float((term_sum[i] - prev_sum[i]) / rows) for i, name in enumerate(self.spec.reward_terms)}
         n_terms, ended = len(self.spec.reward_terms), episodes - prev_eps
@@ -656,6 +681,7 @@ class WorkerPool:
             "episode_metrics": per_episode,
             "episode_return_mean": float(returns.mean()) if returns.size else float("nan"),
             "episode_length_mean": float(lengths.mean()) if lengths.size else float("nan"),
+            "episode_terminated_fraction": float(terminated.mean()) if terminated.size else float("nan"),
             "recent_episode_returns": returns,
             "recent_episode_lengths": lengths,
             "reward_terms": terms,

@@ -81,6 +81,7 @@ def control_layout(num_workers: int, n_terms: int, episode_window: int = EPISODE
         "worker": ((num_workers, 16), np.int64),
         "ep_return": ((num_workers, episode_window), np.float32),
         "ep_length": ((num_workers, episode_window), np.int32),
+        "ep_terminated": ((num_workers, episode_window), np.uint8),
         "term_sum": ((num_workers, max(n_terms, 1)), np.float64),  # reward terms, then episode metrics
         "timing": ((num_workers, len(TIMING)), np.float64),  # seconds spent per phase, see TIMING
         "error": ((num_workers, ERROR_BYTES), np.uint8),
@@ -303,6 +304,7 @@ class Worker:
             pos = (n0 + np.arange(done.size)) % window
             ctl["ep_return"][w, pos[-window:]] = self.ep_return[done][-window:]
             ctl["ep_length"][w, pos[-window:]] = self.ep_length[done][-window:]
+            ctl["ep_terminated"][w, pos[-window:]] = out["terminated"][done][-window:]
             self._words[EPISODES] = n0 + done.size
             for j, name in enumerate(self._episode_metrics):  # after the reward terms' columns
                 ctl["term_sum"][w, len(self.spec.reward_terms) + j] += float(np.sum(task_extras[name][done]))

@@ -24,6 +24,18 @@ from unilab_jax.core import normalizer
 from unilab_jax.fields import REPLAY_FIELDS as BATCH_FIELDS
 
 NP = shim.get("numpy")
+# compute_dtype "auto", per jax backend (jax.default_backend()); other backends: float32.
+AUTO_COMPUTE_DTYPE = {"cpu": "float32", "gpu": "bfloat16", "cuda": "bfloat16", "rocm": "bfloat16"}
+
+
+def compute_dtype(config: Any, backend: str) -> str:
+    """The matrix-multiply dtype a learner on ``backend`` ("cpu", "gpu", ..., "mlx") uses for ``config``."""
+    name = config.compute_dtype
+    if name == "auto":
+        return AUTO_COMPUTE_DTYPE.get(backend, "float32")
+    if backend == "mlx" and name != "float32":
+        raise ValueError(f"compute_dtype={name!r}: the MLX learners compute in float32 (use 'float32' or 'auto')")
+    return name
 
 
 def make_optimizer(opt: ModuleType, learning_rate: float, weight_decay: float = 0.0,

@@ -18,6 +18,12 @@ not depend on the platform (optimizers, initial states, the normalizer step, met
 
 ``compiler_options`` (e.g. ``{"xla_backend_optimization_level": 0}``, which halves CPU compile time
 for tests and tiny networks) go to ``jax.jit``. ``trace_count`` counts traces of ``update``.
+
+``compute_dtype`` (``learner_common.compute_dtype`` of ``config.compute_dtype`` on this jax backend):
+the update is traced inside ``xp.compute_dtype``, so with "bfloat16" every network matmul (forward and
+backward) takes bf16 operands with float32 accumulation and results; parameters, optimizer states,
+norms, softmax, the C51 projection, log-probs and losses stay float32. "float32" traces exactly the
+float32 program.
 """
 
 from __future__ import annotations
@@ -50,7 +56,13 @@ class _Jitted:
     """The JAX side of every off-policy learner: ``_update`` as ONE jit (state donated on accelerators), ``init``."""
 
     def _compile(self, compiler_options: dict | None) -> None:
-        self._update_jit = jax.jit(self._update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
+        self.compute_dtype = common.compute_dtype(self.config, jax.default_backend())
+
+        def update(state: Any, batch: dict) -> tuple[Any, dict]:
+            with XP.compute_dtype(self.compute_dtype):
+                return self._update(state, batch)
+
+        self._update_jit = jax.jit(update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
         self._init_state = jax.jit(self.initial_state, compiler_options=compiler_options)
 
     def update(self, state: Any, batch: dict) -> tuple[Any, dict]:

@@ -118,6 +118,7 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
     """Learner for SAC, FastSAC and FlashSAC (``algo`` is the algorithm module)."""
 
     def __init__(self, algo: ModuleType, config: Any, spec: Any):
+        common.compute_dtype(config, "mlx")
         super().__init__(algo, config, spec, optim, XP)
         self._step = mx.compile(self._step_fn)
 
@@ -194,6 +195,7 @@ class TD3Learner(_Compiled, common.TD3Base):
     """Learner for TD3: delayed actor and target updates every ``policy_delay`` gradient steps."""
 
     def __init__(self, config: td3.TD3Config, spec: Any):
+        common.compute_dtype(config, "mlx")
         super().__init__(config, spec, optim, XP)
         self._steps = {flag: mx.compile(functools.partial(self._step_fn, do_actor=flag)) for flag in (False, True)}
 

@@ -53,6 +53,10 @@ class OffPolicyConfig:
     ``replay_capacity`` transitions in all (split over workers); ``learning_starts`` transitions
     collected before the first update; ``publish_every`` gradient steps between weight publications.
     ``horizon``: control steps per worker chunk (the runtime's unit; the trainer and the CLI read it).
+    ``compute_dtype``: the JAX learners' matrix multiplies -- "float32", "bfloat16" (bf16 operands,
+    float32 accumulation, results, master weights, norms, softmax, C51 projection, log-probs, losses and
+    optimizer: ``unilab_jax.xp``'s ``compute_dtype``) or "auto" (``learner_common.AUTO_COMPUTE_DTYPE``
+    per backend: float32 on CPU). The MLX learners compute in float32 and refuse "bfloat16".
     """
 
     actor_hidden: tuple[int, ...] = (256, 256)
@@ -71,6 +75,7 @@ class OffPolicyConfig:
     normalize_obs: bool = True
     max_grad_norm: float = 0.0  # 0 disables gradient clipping
     weight_decay: float = 0.0  # decoupled (AdamW) when > 0
+    compute_dtype: str = "auto"
 
     def __post_init__(self) -> None:
         check_config(self)
@@ -104,6 +109,8 @@ def check_config(cfg: Any) -> None:
         problems.append("init_alpha must be positive")
     if hasattr(cfg, "num_atoms") and (cfg.num_atoms < 2 or not cfg.v_min < cfg.v_max):
         problems.append(f"need num_atoms >= 2 and v_min < v_max (got {cfg.num_atoms}, [{cfg.v_min}, {cfg.v_max}])")
+    if cfg.compute_dtype not in ("auto", "float32", "bfloat16"):
+        problems.append(f"compute_dtype must be 'auto', 'float32' or 'bfloat16', got {cfg.compute_dtype!r}")
     if getattr(cfg, "policy_delay", 1) < 1:
         problems.append("policy_delay must be >= 1")
     if problems:
