@@ -161,7 +161,7 @@ sys.modules['optax'] = None
 import mlx.core as mx
 import numpy as np
 from tasks.base import TaskSpec
-from unilab_jax.algos.offpolicy import fastsac, flashsac, sac, td3
+from unilab_jax.algos.offpolicy import fastsac, flashsac, sac, sacflow, td3
 spec = TaskSpec(name='t', obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
                 reward_terms=('r',))
 rng = np.random.default_rng(0)
@@ -171,7 +171,8 @@ batch = dict(obs=f(U, B, 6), critic_obs=f(U, B, 8), next_obs=f(U, B, 6), next_cr
              action=mx.tanh(f(U, B, 3)), reward=f(U, B), terminated=mx.array(rng.random((U, B)) < 0.1),
              truncated=mx.array(rng.random((U, B)) < 0.1))
 small = dict(actor_hidden=(16,), critic_hidden=(16,), batch_size=B, updates_per_call=U)
-for module, extra in ((sac, {}), (fastsac, dict(num_atoms=11)), (flashsac, dict(num_atoms=11)), (td3, {})):
+for module, extra in ((sac, {}), (fastsac, dict(num_atoms=11)), (flashsac, dict(num_atoms=11)), (td3, {}),
+                      (sacflow, dict(flow_steps=2))):
     learner = module.make_learner('mlx', module.Config(**small, **extra), spec)
     state = learner.init(mx.random.key(0))
     state, metrics = learner.update(state, batch)
