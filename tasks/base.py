@@ -41,6 +41,12 @@ class TaskSpec:
     ctrl_dt: float
     reward_terms: tuple[str, ...]
     privileged_dim: int = 0  # extrinsics vector for teacher/student methods (0: none)
+    # Per-transition fields the task writes besides the standard ones, ``(name, shape, dtype)`` (values in
+    # ``StepOut.extras``; e.g. the robot tasks' ``source``: who chose the action, policy 0 / operator 1).
+    transition_fields: tuple[tuple[str, tuple[int, ...], str], ...] = ()
+    # Per-episode quantities (values in ``StepOut.extras``, read where an episode ended), logged as means
+    # over the episodes ended since the previous log (``WorkerPool.stats()["episode_metrics"]``).
+    episode_metrics: tuple[str, ...] = ()
     # True where an episode terminates only by succeeding (the robot tasks): episode and evaluation logs
     # then report the terminated fraction as ``success_rate``.
     success_on_termination: bool = False
@@ -55,6 +61,9 @@ class StepOut(NamedTuple):
     terminated: np.ndarray
     truncated: np.ndarray
     reward_terms: dict[str, np.ndarray]
+    # The values of ``spec.transition_fields`` and ``spec.episode_metrics`` ([M, ...] each), and ``action``
+    # [M, A] where the task executed another action than the policy's (an operator took over).
+    extras: Mapping[str, np.ndarray] | None = None
 
 
 class StepInterrupted(Exception):

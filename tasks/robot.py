@@ -13,6 +13,15 @@ the observation, the robot's privileged state and the episode time ``t / episode
 Reward: the robot's (one term, ``task``). An episode ends when the robot says so (success: terminated;
 its time limit: truncated) or after ``episode_length`` steps (truncated).
 
+Operator channel (``operator``, ``unilab_jax.robots.operator``): ``gate`` lets the scripted expert, acting
+as a human operator, take over an env's robot when the policy leaves the safe region, drops the object or
+stalls, for ``operator_segment`` steps; ``always`` has it drive whole episodes (demonstrations). The
+executed action is the transition's ``action``, and every transition records who chose it in the
+``source`` field (0 policy, 1 operator; ``SOURCE_POLICY`` / ``SOURCE_OPERATOR``). Per episode the task
+reports ``intervention_rate`` (operator steps / steps) and ``interventions`` (takeovers) as episode
+metrics (logged as ``episode/intervention_rate``, ``episode/interventions``). The operator runs here,
+beside the robot client, so it works the same for robots behind remote servers.
+
 Robots step concurrently (one thread each; a step blocks for a control period). A lost robot (its server
 does not answer, or a step or reset fails) interrupts the step (``tasks.base.StepInterrupted``: no
 transition, every env reset): the task first waits, calling ``keepalive`` and retrying every ``retry_s``,
@@ -32,9 +41,12 @@ from tasks import base
 from unilab_jax.robots.client import RobotClient
 from unilab_jax.robots.interface import Robot, RobotClaimed, RobotDisconnected, RobotError
 from unilab_jax.robots.inventory import check_address, compatible
+from unilab_jax.robots.operator import ExpertOperator, OperatorConfig
 
 KINDS = ("franka", "ur5e")
 REWARD_TERMS = ("task",)
+SOURCE_POLICY, SOURCE_OPERATOR = 0, 1
+EPISODE_METRICS = ("intervention_rate", "interventions")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +67,14 @@ class RobotTaskConfig:
     # if there are at least k (num_envs shrinks to their count): evaluations on the robots that are left.
     min_envs: int = 0
     retry_s: float = 1.0  # between attempts to reach a lost robot
+    operator: str = "off"  # the operator channel: off, gate (takes over when needed) or always (demonstrations)
+    operator_segment: int = 20  # control steps per takeover (gate)
+    operator_stall_steps: int = 15  # policy steps without reward progress before a takeover (gate)
+    operator_box: tuple[float, ...] = OperatorConfig.box  # safe tcp region (x, y, z) low then high (gate)
+
+    def operator_config(self) -> OperatorConfig:
+        return OperatorConfig(mode=self.operator, segment_steps=self.operator_segment,
+                              stall_steps=self.operator_stall_steps, box=tuple(self.operator_box))
 
     def __post_init__(self):
         for address in self.robots:
@@ -65,6 +85,7 @@ class RobotTaskConfig:
             raise ValueError(f"min_envs must be >= 0, got {self.min_envs}")
         if self.arm not in KINDS:
             raise ValueError(f"arm must be one of {KINDS}, got {self.arm!r}")
+        self.operator_config()  # checks the operator fields
 
 
 def default_config() -> RobotTaskConfig:
@@ -98,7 +119,9 @@ class RobotTask(base.Task):
         self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
                                   critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
                                   episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS,
+                                  transition_fields=(("source", (), "uint8"),), episode_metrics=EPISODE_METRICS,
                                   success_on_termination=True)
+        self.set_operator(config.operator)
         self.steps = np.zeros(num_envs, np.int64)
         self._last = [dict[str, np.ndarray]() for _ in range(num_envs)]
         self._threads = concurrent.futures.ThreadPoolExecutor(num_envs) if num_envs > 1 else None
@@ -218,6 +241,13 @@ class RobotTask(base.Task):
         for i, g in enumerate(got):
             self._last[i] = self._rejoin(i) if i in lost or isinstance(g, RobotError) else g
         self.steps[:] = 0
+        for op in self.operators:
+            op.reset()
+
+    def set_operator(self, mode: str) -> None:
+        """Switches the operator channel (``off``, ``gate``, ``always``; HG-DAgger's phases); call ``reset`` next."""
+        op_config = dataclasses.replace(self.config, operator=mode).operator_config()
+        self.operators = [ExpertOperator(r.spec, op_config) for r in self.robots] if mode != "off" else []
 
     # ---- the Task contract ----------------------------------------------------------------------------
     def reset(self) -> tuple[np.ndarray, np.ndarray]:
@@ -227,6 +257,10 @@ class RobotTask(base.Task):
     def step(self, action: np.ndarray) -> base.StepOut:
         a = np.nan_to_num(np.asarray(action, np.float32).reshape(self.num_envs, -1), nan=0.0)
         a = np.clip(a, -1.0, 1.0)
+        source = np.full(self.num_envs, SOURCE_POLICY, np.uint8)
+        for i, op in enumerate(self.operators):
+            a[i], by_operator = op.act(self._last[i], a[i])
+            source[i] = SOURCE_OPERATOR if by_operator else SOURCE_POLICY
         got = self._map(lambda i, ai: self.robots[i].step(ai), list(a))
         lost = {i for i, g in enumerate(got) if isinstance(g, RobotError)}
         if lost:  # no transition for anyone: every env starts again once the lost robots are back
@@ -240,6 +274,13 @@ class RobotTask(base.Task):
         trunc = (np.array([g.truncated for g in got], bool) | (self.steps >= self.length)) & ~term
         for i, g in enumerate(got):
             self._last[i] = g.obs
+        extras = {"source": source, "intervention_rate": np.zeros(self.num_envs, np.float32),
+                  "interventions": np.zeros(self.num_envs, np.float32)}
+        if self.operators:
+            extras["action"] = a
+        for i, op in enumerate(self.operators):
+            op.observe(float(reward[i]))
+            extras["intervention_rate"][i], extras["interventions"][i] = op.rate, op.takeovers
         next_obs, next_critic = self._observe_all()
         done = np.flatnonzero(term | trunc)
         obs, critic = next_obs, next_critic
@@ -247,9 +288,11 @@ class RobotTask(base.Task):
             fresh = self._map(lambda i, d: self.robots[i].reset() if d else None, list(term | trunc))
             for i in done:  # the step happened: a robot lost while resetting starts its next episode on return
                 self._last[i] = self._rejoin(i) if isinstance(fresh[i], RobotError) else fresh[i]
+                if self.operators:
+                    self.operators[i].reset()
             self.steps[done] = 0
             obs, critic = self._observe_all()
-        return base.StepOut(obs, critic, next_obs, next_critic, reward, term, trunc, {"task": reward.copy()})
+        return base.StepOut(obs, critic, next_obs, next_critic, reward, term, trunc, {"task": reward.copy()}, extras)
 
     def close(self) -> None:
         if getattr(self, "_threads", None) is not None:

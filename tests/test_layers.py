@@ -40,7 +40,7 @@ LAYERS = [
     ("unilab_jax.trainer", 6), ("unilab_jax.cli", 6), ("unilab_jax.hora_cli", 6), ("unilab_jax.mjx_train", 6),
     ("unilab_jax.mjx_cli", 6), ("unilab_jax.device_replay", 6), ("unilab_jax.sharding", 6), ("experiments.*", 6),
     ("unilab_jax.saved_run", 6), ("unilab_jax.play", 6), ("unilab_jax.export", 6),
-    ("unilab_jax.robot_cli", 6),
+    ("unilab_jax.robot_cli", 6), ("unilab_jax.hgdagger", 6),
 ]
 
 

@@ -1,5 +1,5 @@
 """The robot experiments' command line (robots as resources, docs/ROBOTS.md): SAC and RLPD on the manipulation
-tasks through robot servers. ``experiments/sac_franka_pick.py`` and its siblings are::
+tasks through robot servers. ``experiments/sac_franka_pick.py`` and its siblings (also SAC Flow's) are::
 
     from unilab_jax.robot_cli import run_robot_experiment
     run_robot_experiment("rlpd", "robot_peg_insertion", RECIPE, default_total_steps=20_000)
@@ -20,6 +20,8 @@ Flags beside the shared ones (``unilab_jax.cli``):
   (``python -m unilab_jax.robots.record``) recorded on the same inventory; without it, ``--num_demos``
   episodes of the scripted expert are recorded on the run's robots first, into ``LOGDIR/demos`` (reused by
   ``--resume``), and their robot time counts towards the run's.
+
+Experiments with their own loop (``hgdagger_franka_pick.py``) use ``robot_entries`` and ``report_robots``.
 
 The summary adds ``robot_s``: robot time at speed 1 (env steps x control period, summed over robots, plus
 the demonstrations'), what physical robots would need.
@@ -58,16 +60,41 @@ flags.DEFINE_bool("dense_reward", None, "sim: robots this run starts: dense shap
 flags.DEFINE_integer("num_demos", 20, "scripted-expert episodes recorded when --demos is not given (RLPD)")
 
 
-def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
-              default_total_steps: int) -> tuple:
+def robot_entries() -> list:
+    """The parsed ``--robots`` inventory; ``ValueError`` (with the flag's name) for a bad one or a bad ``--speed``."""
     from unilab_jax.robots import inventory
 
     try:
         entries = inventory.parse(FLAGS.robots)
     except inventory.InventoryError as e:
-        raise FlagError(f"--robots: {e}") from e
+        raise ValueError(f"--robots: {e}") from e
     if not FLAGS.speed > 0 or FLAGS.speed == float("inf"):
-        raise FlagError(f"--speed must be positive and finite, got {FLAGS.speed}")
+        raise ValueError(f"--speed must be positive and finite, got {FLAGS.speed}")
+    return entries
+
+
+def report_robots(addresses: list[str], task: str) -> list:
+    """Checks every robot of the run (spec, health, one policy for all), prints and returns them (``inventory``'s
+    discovery); exits 2 on a problem."""
+    from unilab_jax.robots import inventory
+
+    try:
+        found = inventory.discover(addresses, task=task)
+    except inventory.InventoryError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+    for robot in found:
+        print(f"robot {robot.address}: {robot.spec.name} ({robot.spec.kind}, {robot.spec.control_hz:g} Hz x "
+              f"{robot.spec.speed:g}), health {robot.health.state}", flush=True)
+    return found
+
+
+def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
+              default_total_steps: int) -> tuple:
+    try:
+        entries = robot_entries()
+    except ValueError as e:
+        raise FlagError(str(e)) from e
     n = len(entries)
     periodic = FLAGS.eval_every > 0
     if not FLAGS["eval_envs"].present:
@@ -132,14 +159,7 @@ def _train(validated: tuple, dense_reward: bool) -> None:
     robot_task = run.task.removeprefix("robot_")
     dense = dense_reward if FLAGS.dense_reward is None else FLAGS.dense_reward
     with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense) as inv:
-        try:
-            found = inventory.discover(inv.addresses, task=robot_task)
-        except inventory.InventoryError as e:
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(2)
-        for robot in found:
-            print(f"robot {robot.address}: {robot.spec.name} ({robot.spec.kind}, {robot.spec.control_hz:g} Hz x "
-                  f"{robot.spec.speed:g}), health {robot.health.state}", flush=True)
+        found = report_robots(inv.addresses, robot_task)
         demo_s = 0.0
         if hasattr(config, "prior_dir"):
             prior_dir, demo_s = _demos(inv.addresses, run, task_overrides)

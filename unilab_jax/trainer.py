@@ -36,7 +36,7 @@ import numpy as np
 
 from unilab_jax import algos, nets
 from unilab_jax.core import rlpd
-from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
+from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS, replay_fields
 from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.xp import tree_leaves
@@ -177,7 +177,7 @@ class Trainer:
             return None
         from unilab_jax.device_replay import DeviceReplay
 
-        return DeviceReplay(pool.buffer, REPLAY_FIELDS, self.parallel)
+        return DeviceReplay(pool.buffer, replay_fields(self.spec), self.parallel)
 
     def _open_replay_store(self) -> Any:
         """The persistent replay store of ``run.replay_dir`` (None when off).
@@ -192,8 +192,9 @@ class Trainer:
         from unilab_jax.runtime.replay_store import ReplayStore
 
         fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
-        store = ReplayStore(run.replay_dir, {k: fields[k] for k in REPLAY_FIELDS}, chunk_rows=run.replay_chunk_rows,
-                            max_bytes=int(run.replay_disk_gb * 1e9), info={"task": run.task, "algo": run.algo})
+        store = ReplayStore(run.replay_dir, {k: fields[k] for k in replay_fields(self.spec)},
+                            chunk_rows=run.replay_chunk_rows, max_bytes=int(run.replay_disk_gb * 1e9),
+                            info={"task": run.task, "algo": run.algo})
         problem = None
         if store.info.get("task") != run.task:
             problem = f"it holds transitions of task {store.info.get('task')!r}"
@@ -233,6 +234,8 @@ class Trainer:
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
                           overrides=self.eval_overrides)
+        if hasattr(task, "set_operator"):  # the policy alone: no operator interventions while evaluating
+            task.set_operator("off")
         zeros = np.zeros((task.num_envs, self.spec.action_dim), np.float32)
         try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
             _, stats = run_episodes(task, lambda obs: self.algo.act(weights, obs, zeros, True)[0], stop=stop)
@@ -712,7 +715,7 @@ class _ReplaySource:
 
             self._spiller = RingSpiller(pool.buffer, store)
             self._tiers = TieredSampler(pool.replay_size, lambda n, rng: pool.sample(n, rng, serial_steps=0), store,
-                                        hot_fraction, REPLAY_FIELDS)
+                                        hot_fraction, replay_fields(pool.spec))
         capacity = pool.num_workers * pool.buffer.capacity
         if self._need > capacity:
             raise ValueError(f"learning_starts/batch_size ({self._need}) exceed the replay capacity ({capacity} "
@@ -789,11 +792,13 @@ class _ReplaySource:
                     pool.pump(1)  # serial mode: the env step pool.sample takes on the ring-only path
                     self._spiller.spill()
                     batch = self._tiers.sample(u, b, rng)
-                out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:])) for k in REPLAY_FIELDS}
-            if b_prior:
+                out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:]))
+                       for k in replay_fields(self._pool.spec)}
+            if b_prior:  # the prior data holds the replay fields only: the task's own (``source``) are left out
                 idx = rng.integers(0, len(self._prior["reward"]), size=u * b_prior)
-                out = rlpd.compose(out, {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))
-                                         for k, v in self._prior.items()})
+                out = rlpd.compose({k: out[k] for k in self._prior},
+                                   {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))
+                                    for k, v in self._prior.items()})
                 scalars["perf/prior_rows"] = float(b_prior)
         self._grad_steps += u
         self._produced += 1
@@ -867,6 +872,7 @@ class _ReplaySource:
             out["episode/length"] = st["episode_length_mean"]
             out["episode/terminated_fraction"] = st["episode_terminated_fraction"]
         out.update({f"reward/{k}": v for k, v in st["reward_terms"].items()})
+        out.update({f"episode/{k}": v for k, v in st["episode_metrics"].items()})
         return out
 
 

@@ -1,4 +1,4 @@
-"""The MLX off-policy learners (SAC, FastSAC, FlashSAC, RLPD, TD3) against the JAX ones: same state in,
+"""The MLX off-policy learners (SAC, FastSAC, FlashSAC, RLPD, SAC Flow, TD3) against the JAX ones: same state in,
 same batch, same noise, one update of U gradient steps on both, same state out.
 
 The JAX state is warmed up by one update first (non-trivial Adam moments, normalizer and reward
@@ -20,7 +20,7 @@ from mlx_helpers import assert_runs_without_jax  # noqa: E402
 from mlx_helpers import leaf_errors as _leaf_errors  # noqa: E402
 
 from tasks.base import TaskSpec  # noqa: E402
-from unilab_jax.algos.offpolicy import fastsac, flashsac, rlpd, sac, td3  # noqa: E402
+from unilab_jax.algos.offpolicy import fastsac, flashsac, rlpd, sac, sacflow, td3  # noqa: E402
 from unilab_jax.algos.offpolicy import learner_mlx as mlx_off  # noqa: E402
 
 SPEC = TaskSpec(name="t", obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
@@ -37,6 +37,7 @@ CASES = {
     "td3": (td3, dict(policy_delay=2)),
     "rlpd": (rlpd, dict(num_critics=4, subset_size=2)),  # LayerNorm ensemble, subset-min target, mean-Q actor
     "rlpd_delayed": (rlpd, dict(num_critics=3, subset_size=2, actor_every=2)),  # actor on every 2nd step only
+    "sacflow": (sacflow, dict(flow_steps=2)),  # gated K-step chain; its noise is [B, (K + 1) A]
 }
 
 
@@ -61,12 +62,12 @@ def _batch(seed: int) -> dict[str, np.ndarray]:
             "reward": f32(0.5 + rng.normal(size=(U, B))), "terminated": terminated, "truncated": truncated}
 
 
-def _jax_noise(key, name: str) -> dict[str, np.ndarray]:
+def _jax_noise(key, name: str, width: int = SPEC.action_dim) -> dict[str, np.ndarray]:
     """The draws ``offpolicy_jax`` makes from ``state.key`` during one update (same jax.random calls)."""
     import jax
     import jax.numpy as jnp
 
-    shape = (B, SPEC.action_dim)
+    shape = (B, width)
     keys = jax.random.split(key, U + 1)
     if name == "td3":
         return {"eps_next": np.stack([np.asarray(jax.random.normal(k, shape, jnp.float32)) for k in keys[1:]])}
@@ -104,7 +105,7 @@ def test_one_update_matches_jax(name):
     assert max(init_err.values()) == 0.0, {p: e for p, e in init_err.items() if e}
 
     js, _ = jl.update(js, {k: jnp.asarray(v) for k, v in _batch(1).items()})  # warm-up
-    noise = _jax_noise(js.key, name)
+    noise = _jax_noise(js.key, name, getattr(jl, "noise_dim", SPEC.action_dim))
     ms = mlx_off.state_from_numpy(jax.device_get(js), like)
     batch = _batch(2)
 
@@ -164,7 +165,7 @@ sys.modules['optax'] = None
 import mlx.core as mx
 import numpy as np
 from tasks.base import TaskSpec
-from unilab_jax.algos.offpolicy import fastsac, flashsac, rlpd, sac, td3
+from unilab_jax.algos.offpolicy import fastsac, flashsac, rlpd, sac, sacflow, td3
 spec = TaskSpec(name='t', obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
                 reward_terms=('r',))
 rng = np.random.default_rng(0)
@@ -175,7 +176,7 @@ batch = dict(obs=f(U, B, 6), critic_obs=f(U, B, 8), next_obs=f(U, B, 6), next_cr
              truncated=mx.array(rng.random((U, B)) < 0.1))
 small = dict(actor_hidden=(16,), critic_hidden=(16,), batch_size=B, updates_per_call=U)
 for module, extra in ((sac, {}), (fastsac, dict(num_atoms=11)), (flashsac, dict(num_atoms=11)), (td3, {}),
-                      (rlpd, dict(num_critics=3))):
+                      (rlpd, dict(num_critics=3)), (sacflow, dict(flow_steps=2))):
     learner = module.make_learner('mlx', module.Config(**small, **extra), spec)
     state = learner.init(mx.random.key(0))
     state, metrics = learner.update(state, batch)

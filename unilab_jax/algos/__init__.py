@@ -5,7 +5,7 @@ JAX learner): algorithm name -> declaration module (``SYNC``, ``BUFFER``, ``Conf
 shim-written ``act`` for the workers; see docs/ARCHITECTURE.md) and (algorithm, platform) ->
 ``"module:factory"``, ``factory(declaration, config, spec) -> learner``. Each family keeps its
 declarations and learners in one folder: ``ppo/`` (PPO, APPO, HIM-PPO), ``offpolicy/`` (SAC, TD3,
-FastSAC, FlashSAC, RLPD) and ``hora/`` (teacher and student).
+FastSAC, FlashSAC, RLPD, SAC Flow) and ``hora/`` (teacher and student).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ _ALGORITHMS: dict[str, str] = {
     "fastsac": f"{_OFF}.fastsac",
     "flashsac": f"{_OFF}.flashsac",
     "rlpd": f"{_OFF}.rlpd",
+    "sacflow": f"{_OFF}.sacflow",
     "hora_teacher": f"{_HORA}.teacher",
     "hora_student": f"{_HORA}.student",
 }
@@ -40,6 +41,7 @@ _LEARNERS: dict[str, dict[str, str]] = {
     "fastsac": _SAC_FAMILY,
     "flashsac": _SAC_FAMILY,
     "rlpd": _SAC_FAMILY,
+    "sacflow": _SAC_FAMILY,
     "hora_teacher": {"jax": f"{_HORA}.learner_jax:make_teacher_learner"},
     "hora_student": {"jax": f"{_HORA}.learner_jax:make_student_learner"},
 }

@@ -62,7 +62,8 @@ class SlotCorruptError(RuntimeError):
 
 
 def transition_layout(spec: Any, extras: Mapping[str, tuple[tuple[int, ...], Any]] | None = None) -> FieldLayout:
-    """Per-transition ``{field: (shape, dtype)}`` from a ``TaskSpec`` and an algorithm's extras."""
+    """Per-transition ``{field: (shape, dtype)}`` from a ``TaskSpec`` (with its ``transition_fields``) and an
+    algorithm's extras."""
     f32 = np.dtype(np.float32)
     layout: FieldLayout = {
         "obs": ((spec.obs_dim,), f32),
@@ -78,9 +79,10 @@ def transition_layout(spec: Any, extras: Mapping[str, tuple[tuple[int, ...], Any
         "episode_length": ((), np.dtype(np.int32)),
         "policy_version": ((), np.dtype(np.int64)),
     }
-    for name, (shape, dtype) in (extras or {}).items():
+    task_fields = {name: (shape, dtype) for name, shape, dtype in getattr(spec, "transition_fields", ())}
+    for name, (shape, dtype) in {**task_fields, **(extras or {})}.items():
         if name in layout:
-            raise ValueError(f"algorithm extra {name!r} collides with a transition field")
+            raise ValueError(f"extra field {name!r} (the task's or the algorithm's) collides with a transition field")
         layout[name] = (tuple(int(s) for s in shape), np.dtype(dtype))
     return layout
 

@@ -291,7 +291,8 @@ class WorkerPool:
         self._res = _Resources()
         self._finalizer = weakref.finalize(self, self._res.shutdown)
         try:
-            ctl = SharedArrays.create(control_layout(num_workers, len(self.spec.reward_terms)), tag="ctl")
+            n_sums = len(self.spec.reward_terms) + len(self.spec.episode_metrics)
+            ctl = SharedArrays.create(control_layout(num_workers, n_sums), tag="ctl")
             self._res.closers.append(ctl)
             self._res.control = ctl
             init_control(ctl)
@@ -654,11 +655,12 @@ class WorkerPool:
         steps = int(words[:, STEPS].sum())
         term_sum = self._ctl["term_sum"].sum(axis=0)
         term_rows = int(words[:, TERM_ROWS].sum())
+        episodes = int(words[:, EPISODES].sum())
         if self._last_stats is None:
-            prev_t, prev_steps, prev_sum, prev_rows = self._t_start, 0, np.zeros_like(term_sum), 0
+            prev_t, prev_steps, prev_sum, prev_rows, prev_eps = self._t_start, 0, np.zeros_like(term_sum), 0, 0
         else:
-            prev_t, prev_steps, prev_sum, prev_rows = self._last_stats
-        self._last_stats = (now, steps, term_sum, term_rows)
+            prev_t, prev_steps, prev_sum, prev_rows, prev_eps = self._last_stats
+        self._last_stats = (now, steps, term_sum, term_rows, episodes)
         dt = max(now - prev_t, 1e-9)
         n_ep = np.minimum(words[:, EPISODES], self._ctl["ep_return"].shape[1])
         returns = np.concatenate([self._ctl["ep_return"][i, : n_ep[i]] for i in range(self.num_workers)])
@@ -666,12 +668,17 @@ class WorkerPool:
         terminated = np.concatenate([self._ctl["ep_terminated"][i, : n_ep[i]] for i in range(self.num_workers)])
         rows = max(term_rows - prev_rows, 1)
         terms = {name: float((term_sum[i] - prev_sum[i]) / rows) for i, name in enumerate(self.spec.reward_terms)}
+        n_terms, ended = len(self.spec.reward_terms), episodes - prev_eps
+        # Per-episode task metrics (e.g. the intervention rate): means over the episodes ended since the last call.
+        per_episode = {name: float((term_sum[n_terms + j] - prev_sum[n_terms + j]) / ended)
+                       for j, name in enumerate(self.spec.episode_metrics) if ended > 0}
         retries = int(words[:, W_RETRIES].sum())
         out = {
             "env_steps": steps,
             "env_steps_per_s": (steps - prev_steps) / dt,
             "env_steps_per_s_total": steps / max(now - self._t_start, 1e-9),
-            "episodes": int(words[:, EPISODES].sum()),
+            "episodes": episodes,
+            "episode_metrics": per_episode,
             "episode_return_mean": float(returns.mean()) if returns.size else float("nan"),
             "episode_length_mean": float(lengths.mean()) if lengths.size else float("nan"),
             "episode_terminated_fraction": float(terminated.mean()) if terminated.size else float("nan"),

@@ -337,10 +337,13 @@ class RayPool:
         fractions = [s["worker_time_fraction"] for s in got]
         ended = [(s["episode_terminated_fraction"], s["recent_episode_returns"].size) for s in got
                  if s["recent_episode_returns"].size]
+        per_episode = {k: [s["episode_metrics"][k] for s in got if k in s["episode_metrics"]]
+                       for k in self.spec.episode_metrics}
         return {
             "env_steps": steps, "env_steps_per_s": (steps - prev_steps) / max(now - prev_t, 1e-9),
             "env_steps_per_s_total": steps / max(now - self._t_start, 1e-9),
             "episodes": sum(int(s["episodes"]) for s in got),
+            "episode_metrics": {k: float(np.mean(v)) for k, v in per_episode.items() if v},
             "episode_return_mean": float(returns.mean()) if returns.size else float("nan"),
             "episode_length_mean": float(lengths.mean()) if lengths.size else float("nan"),
             "episode_terminated_fraction": sum(f * n for f, n in ended) / sum(n for _, n in ended) if ended

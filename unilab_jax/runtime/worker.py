@@ -82,7 +82,7 @@ def control_layout(num_workers: int, n_terms: int, episode_window: int = EPISODE
         "ep_return": ((num_workers, episode_window), np.float32),
         "ep_length": ((num_workers, episode_window), np.int32),
         "ep_terminated": ((num_workers, episode_window), np.uint8),
-        "term_sum": ((num_workers, max(n_terms, 1)), np.float64),
+        "term_sum": ((num_workers, max(n_terms, 1)), np.float64),  # reward terms, then episode metrics
         "timing": ((num_workers, len(TIMING)), np.float64),  # seconds spent per phase, see TIMING
         "error": ((num_workers, ERROR_BYTES), np.uint8),
     }
@@ -158,13 +158,18 @@ class Worker:
         self.task.keepalive = self._keepalive
         self._interrupted = tasks.base.StepInterrupted
         self.spec = self.task.spec
+        self._task_fields = [name for name, _, _ in getattr(self.spec, "transition_fields", ())]
+        self._episode_metrics = tuple(getattr(self.spec, "episode_metrics", ()))
         self._reset_envs = getattr(self.task, "reset_envs", None)
         self.m = args.envs_per_worker
         self.rng = np.random.default_rng(np.random.SeedSequence([args.worker_seed, 0x5EED]))
         # Exploration noise held for NOISE_HOLD_STEPS control steps per env (an algorithm module's
         # optional attribute; 1: a fresh draw every step). Redrawn early when an env's episode ends.
         self.noise_hold = max(int(getattr(self.algo, "NOISE_HOLD_STEPS", 1)), 1)
-        self._noise = np.zeros((self.m, self.spec.action_dim), np.float32)
+        # Standard normals per env step: the action dimension, or the algorithm's ``noise_dim(action_dim)``.
+        noise_dim = getattr(self.algo, "noise_dim", None)
+        self.noise_dim = int(noise_dim(self.spec.action_dim)) if noise_dim else self.spec.action_dim
+        self._noise = np.zeros((self.m, self.noise_dim), np.float32)
         self._noise_left = np.zeros(self.m, np.int64)  # steps each env's current draw is still held
         self.obs, self.critic_obs = self.task.reset()
         self.ep_return = np.zeros(self.m, np.float32)
@@ -262,6 +267,11 @@ class Worker:
         t3 = time.perf_counter()
         if self._words[WAITING]:
             self._words[WAITING] = 0
+        task_extras = res.extras or {}
+        if "action" in task_extras:  # the task executed another action (an operator's) than the policy's
+            out["action"][...] = task_extras["action"]
+        for name in self._task_fields:
+            out[name][...] = task_extras[name]
         out["reward"][...] = res.reward
         out["terminated"][...] = res.terminated
         out["truncated"][...] = res.truncated
@@ -296,6 +306,8 @@ class Worker:
             ctl["ep_length"][w, pos[-window:]] = self.ep_length[done][-window:]
             ctl["ep_terminated"][w, pos[-window:]] = out["terminated"][done][-window:]
             self._words[EPISODES] = n0 + done.size
+            for j, name in enumerate(self._episode_metrics):  # after the reward terms' columns
+                ctl["term_sum"][w, len(self.spec.reward_terms) + j] += float(np.sum(task_extras[name][done]))
             self.ep_return[done] = 0.0
             self.ep_length[done] = 0
         self._words[STEPS] += self.m
@@ -341,13 +353,13 @@ class Worker:
         self.critic_obs[idx] = critic_obs
 
     def _exploration_noise(self) -> np.ndarray:
-        """Standard normal ``[M, A]``: a fresh draw every step, or each env's draw held for
+        """Standard normal ``[M, noise_dim]``: a fresh draw every step, or each env's draw held for
         ``noise_hold`` steps (vectorised: only the envs whose hold ran out draw again)."""
         if self.noise_hold <= 1:
-            return self.rng.standard_normal((self.m, self.spec.action_dim), dtype=np.float32)
+            return self.rng.standard_normal((self.m, self.noise_dim), dtype=np.float32)
         redraw = np.flatnonzero(self._noise_left <= 0)
         if redraw.size:
-            self._noise[redraw] = self.rng.standard_normal((redraw.size, self.spec.action_dim), dtype=np.float32)
+            self._noise[redraw] = self.rng.standard_normal((redraw.size, self.noise_dim), dtype=np.float32)
             self._noise_left[redraw] = self.noise_hold
         self._noise_left -= 1
         return self._noise.copy()

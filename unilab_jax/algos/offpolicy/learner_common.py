@@ -116,6 +116,9 @@ class SACFamilyBase:
         self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
         self.alpha_tx = opt.adam(config.alpha_learning_rate)
         self.target_entropy = float(config.target_entropy_per_dim * spec.action_dim)
+        # Standard normals per sample of the policy's reparameterised draw (SAC: |A|; SAC Flow: its chain).
+        noise_dim = getattr(algo, "learner_noise_dim", None)
+        self.noise_dim = noise_dim(config, spec.action_dim) if noise_dim else spec.action_dim
         self._project = getattr(algo, "project_params", None)
         self._reward_scale = getattr(algo, "reward_scale", None)
         # An algorithm with ``critic_noise_shape(config)`` (RLPD) gets ``(eps_next, u)`` in its critic loss,

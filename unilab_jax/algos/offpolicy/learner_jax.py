@@ -98,8 +98,9 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
         def step(st: SACState, xs: tuple) -> tuple[SACState, dict]:
             mb, key = xs
             keys = jax.random.split(key, 2 if self.critic_noise_shape is None else 3)
-            eps_next = jax.random.normal(keys[0], mb["action"].shape, jnp.float32)
-            eps = jax.random.normal(keys[1], mb["action"].shape, jnp.float32)
+            shape = (mb["action"].shape[0], self.noise_dim)
+            eps_next = jax.random.normal(keys[0], shape, jnp.float32)
+            eps = jax.random.normal(keys[1], shape, jnp.float32)
             if self.critic_noise_shape is not None:
                 eps_next = (eps_next, jax.random.uniform(keys[2], self.critic_noise_shape, jnp.float32))
             # 1. critics

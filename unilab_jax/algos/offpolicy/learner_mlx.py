@@ -28,10 +28,12 @@ from the step counter (read once per call): two compiled variants, critic-only a
 replace ``lax.cond``.
 
 Randomness: the state's key is split into ``U + 1`` keys exactly as in JAX (the first becomes the
-next state's key); SAC-family step ``i`` splits ``keys[i + 1]`` into ``(k_next, k_pi)`` and draws
-``eps_next``/``eps`` ~ N(0, 1) of the action's shape; TD3 draws ``eps_next`` from ``keys[i + 1]``.
+next state's key); SAC-family step ``i`` splits ``keys[i + 1]`` into ``(k_next, k_pi)`` (RLPD: and a
+third key for its critic-subset uniforms ``u``) and draws ``eps_next``/``eps`` ~ N(0, 1) of shape
+``[B, noise_dim]``; TD3 draws ``eps_next`` from ``keys[i + 1]``.
 MLX's normal draws differ from JAX's for the same key, so parity tests inject the JAX draws through
-``update(..., noise={"eps_next": [U, B, A], "eps": [U, B, A]})`` (TD3: ``eps_next`` only).
+``update(..., noise={"eps_next": [U, B, N], "eps": [U, B, N]})`` with N the learner's ``noise_dim`` (the
+action dimension; SAC Flow: its chain's) (RLPD: also ``"u"``; TD3: ``eps_next`` only, N = A).
 
 This module imports mlx and numpy (and the shim-written ``unilab_jax`` modules) only, never jax or
 optax.
@@ -165,9 +167,9 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
                noise: Mapping[str, Any] | None = None) -> tuple[SACState, dict]:
         """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` is a no-op.
 
-        ``noise`` (testing/parity only): ``{"eps_next": [U, B, A], "eps": [U, B, A]}`` replacing the
-        standard-normal draws made from the state's key (the key still advances as usual); algorithms
-        with a critic noise (RLPD) also take ``"u": [U, *critic_noise_shape]``.
+        ``noise`` (testing/parity only): ``{"eps_next": [U, B, N], "eps": [U, B, N]}`` (N = ``noise_dim``)
+        replacing the standard-normal draws made from the state's key (the key still advances as usual);
+        algorithms with a critic noise (RLPD) also take ``"u": [U, *critic_noise_shape]``.
         """
         if not batch:
             return state, {}
@@ -184,7 +186,7 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         step_metrics = []
         for i in range(n):
             mb = {k: v[i] for k, v in batch.items()}
-            shape = tuple(mb["action"].shape)
+            shape = (int(mb["action"].shape[0]), self.noise_dim)
             ks = XP.random.split(keys[i + 1], 2 if self.critic_noise_shape is None else 3)
             eps_next = _noise(noise, "eps_next", i, shape, ks[0])
             eps = _noise(noise, "eps", i, shape, ks[1])

@@ -1,0 +1,91 @@
+"""HG-DAgger on pick-and-place through robot servers, the scripted expert acting as the operator.
+
+    python experiments/hgdagger_franka_pick.py --robots=sim:franka_emika_panda --speed=20 \\
+        --total_steps=2000 --logdir=runs/hgdagger_pick
+
+``unilab_jax/hgdagger.py``: whole-episode demonstrations by the operator, a behaviour-cloned novice (kept
+weak: ``--demo_episodes``), then ``--rounds`` rounds of ``--episodes_per_round`` episodes in which the
+operator takes over when the novice leaves the safe region, drops the cube or stalls
+(``--operator_segment`` steps per takeover, ``--operator_stall_steps``), only the operator's segments
+joining the dataset, and a refit; the novice is evaluated alone on ``--eval_episodes`` after every fit.
+``--total_steps`` (default 20000) caps the robot steps of the whole run; ``--seed``, ``--logdir``,
+``--robots`` and ``--speed`` are the shared flags (``unilab_jax.cli``, ``unilab_jax.robot_cli``). The loop
+drives the task in this process (one env per robot of ``--robots``: a comma list or ``.toml`` inventory;
+``sim:NAME`` robots are started here at ``--speed``, ``tcp://HOST:PORT`` robots are servers already
+running); the operator runs beside the robot clients, so remote robots work the same. Logs:
+``metrics.jsonl`` / TensorBoard in ``--logdir``
+(``eval/success_rate``, ``hgdagger/intervention_rate``, ...), and ``summary.json``.
+"""
+
+import json
+import os
+import signal
+import sys
+
+from absl import app, flags
+from absl import logging as absl_logging
+
+from unilab_jax.robot_cli import FLAGS, report_robots, robot_entries
+
+flags.DEFINE_integer("demo_episodes", 12, "operator demonstrations for the initial behaviour-cloned policy")
+flags.DEFINE_integer("rounds", 6, "HG-DAgger rounds (gated collection, aggregation, refit)")
+flags.DEFINE_integer("episodes_per_round", 8, "gated episodes per round")
+flags.DEFINE_integer("eval_episodes", 12, "episodes of each evaluation of the novice alone")
+flags.DEFINE_integer("operator_segment", 20, "control steps the operator drives per takeover")
+flags.DEFINE_integer("operator_stall_steps", 15, "novice steps without reward progress before a takeover")
+flags.DEFINE_integer("bc_epochs", 150, "behaviour-cloning epochs per fit")
+flags.DEFINE_string("bc_hidden", "128,128", "behaviour-cloning MLP hidden sizes")
+TOTAL_STEPS = 20_000  # robot steps of the whole run (demonstrations, rounds, evaluations) without --total_steps
+
+
+def validate():
+    """The robot inventory and the loop's configuration; ``ValueError`` names a bad flag."""
+    from unilab_jax.algos.imitation.bc import BCConfig
+    from unilab_jax.hgdagger import HGDaggerConfig
+    from unilab_jax.robots.operator import OperatorConfig
+
+    entries = robot_entries()
+    hidden = tuple(int(h) for h in FLAGS.bc_hidden.split(","))
+    config = HGDaggerConfig(demo_episodes=FLAGS.demo_episodes, rounds=FLAGS.rounds,
+                            episodes_per_round=FLAGS.episodes_per_round, eval_episodes=FLAGS.eval_episodes,
+                            max_env_steps=FLAGS.total_steps or TOTAL_STEPS,
+                            bc=BCConfig(hidden=hidden, epochs=FLAGS.bc_epochs))
+    OperatorConfig(segment_steps=FLAGS.operator_segment, stall_steps=FLAGS.operator_stall_steps)
+    return entries, config
+
+
+def main(argv):
+    if len(argv) > 1:
+        raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+    absl_logging.set_verbosity(absl_logging.WARNING)
+    try:
+        entries, config = validate()
+    except ValueError as e:  # a bad flag: exit 2 before any robot starts
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+    import tasks
+    from unilab_jax.hgdagger import HGDagger
+    from unilab_jax.robots import inventory
+
+    with inventory.Inventory(entries, "pick_place", FLAGS.speed, seed=FLAGS.seed) as inv:
+        report_robots(inv.addresses, "pick_place")
+        task = tasks.make("robot_pick_place", len(inv.addresses), FLAGS.seed,
+                          {"robots": tuple(inv.addresses), "operator_segment": FLAGS.operator_segment,
+                           "operator_stall_steps": FLAGS.operator_stall_steps})
+        try:
+            summary = HGDagger(task, config, seed=FLAGS.seed, logdir=FLAGS.logdir).run()
+        finally:
+            task.close()
+    if FLAGS.logdir:
+        with open(os.path.join(FLAGS.logdir, "summary.json"), "w") as f:
+            json.dump(summary, f, indent=2)
+    print(json.dumps(summary, indent=2))
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt  # unwinds through Inventory, which stops the servers this run started
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, _terminate)
+    app.run(main)

@@ -1,0 +1,18 @@
+"""State-based SAC Flow on pick-and-place through robot servers: ``sac_franka_pick.py`` with the flow policy.
+
+    python experiments/sacflow_franka_pick.py --robots=sim:franka_emika_panda --speed=20 \\
+        --total_steps=3000 --logdir=runs/sacflow_pick
+
+Same robots, flags, task and SAC recipe as ``sac_franka_pick.py`` (so SAC Flow and SAC compare at equal
+robot time); the actor is the gated K-step flow (``--config=flow_steps=K``, default 4) trained with
+SAC's objective and automatic temperature (``unilab_jax/algos/offpolicy/sacflow.py``).
+"""
+
+from sac_franka_pick import RECIPE
+
+from unilab_jax.robot_cli import run_robot_experiment
+
+FLOW_RECIPE = {**RECIPE, "flow_steps": 4}
+
+if __name__ == "__main__":
+    run_robot_experiment("sacflow", "robot_pick_place", FLOW_RECIPE, default_total_steps=50_000)
