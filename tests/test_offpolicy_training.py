@@ -142,7 +142,7 @@ def test_noise_hold_redraws_every_n_steps_per_env():
     from unilab_jax.runtime.worker import Worker
 
     w = Worker.__new__(Worker)  # only the noise state (no task, no shared memory)
-    w.m, w.noise_hold = 4, 3
+    w.m, w.noise_hold, w.noise_dim = 4, 3, 2
     w.spec = type("Spec", (), {"action_dim": 2})()
     w.rng = np.random.default_rng(0)
     w._noise, w._noise_left = np.zeros((4, 2), np.float32), np.zeros(4, np.int64)
