@@ -1,5 +1,10 @@
 # Sourced at the start of each command on the GPU machine: installs the offline bundle made by
 # ../shared/device/prepare.sh (MuJoCo wheels + robots) and puts the checkout on the path.
+# With the compressed bundle of bench/device_bundle.sh (.devr carried): wheels copied, the robots in $ROBOTS unpacked.
+if [ -d .devr ]; then
+  mkdir -p .device/robots .device/whl && cp .devr/whl/*.whl .device/whl/
+  for r in ${ROBOTS:-unitree_go1}; do tar xJf ".devr/$r.tar.xz" -C .device/robots || exit 1; done
+fi
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .device/whl/*.whl || exit 1
 export PYTHONPATH=/tmp/site:$PWD MENAGERIE_ROOT=$PWD/.device/robots PYTHONUNBUFFERED=1
 nproc; nvidia-smi -L; python3 -c "import jax, mujoco; print('jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__)"
