@@ -179,6 +179,13 @@ class Trainer:
 
         return DeviceReplay(pool.buffer, replay_fields(self.spec), self.parallel)
 
+    def _row_layout(self, names: tuple[str, ...]) -> dict[str, Any]:
+        """The (shape, dtype) of the transition fields ``names`` for this run's task and algorithm."""
+        from unilab_jax.runtime.buffers import transition_layout
+
+        fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
+        return {k: fields[k] for k in names}
+
     def _open_replay_store(self) -> Any:
         """The persistent replay store of ``run.replay_dir`` (None when off).
 
@@ -188,11 +195,9 @@ class Trainer:
         run = self.run
         if not run.replay_dir:
             return None
-        from unilab_jax.runtime.buffers import transition_layout
         from unilab_jax.runtime.replay_store import ReplayStore
 
-        fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
-        store = ReplayStore(run.replay_dir, {k: fields[k] for k in replay_fields(self.spec)},
+        store = ReplayStore(run.replay_dir, self._row_layout(replay_fields(self.spec)),
                             chunk_rows=run.replay_chunk_rows, max_bytes=int(run.replay_disk_gb * 1e9),
                             info={"task": run.task, "algo": run.algo})
         problem = None
@@ -216,11 +221,9 @@ class Trainer:
         directory = getattr(self.config, "prior_dir", "")
         if not directory:
             return None
-        from unilab_jax.runtime.buffers import transition_layout
         from unilab_jax.runtime.prior import load_prior
 
-        fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
-        prior = load_prior(directory, {k: fields[k] for k in REPLAY_FIELDS})
+        prior = load_prior(directory, self._row_layout(REPLAY_FIELDS))
         log.info("prior data: %d transitions from %s", len(prior["reward"]), directory)
         return prior
 
