@@ -1,8 +1,13 @@
 """SAC Flow learns cart-pole balance through the real runtime (2 worker processes, the Trainer's replay loop,
 the JAX learner), with sac_cartpole.py's recipe and a 2-step flow.
 
-Measured (2-core dev VM, seeds 0-3, 450k env steps, ~173 updates of 32 gradient steps, 21-23 s wall):
-eval return at 100k 131/159/182/188, at 450k 194/195/197/199 (of 200; a random policy scores ~35).
+Measured (2-core dev VM, 450k env steps, ~173 updates of 32 gradient steps, 11-23 s wall; a random policy
+scores ~35 of 200). Evaluations at 100k, 200k, 300k, 400k and the final one, 8 runs over seeds 0-3:
+  [158 189 162 128 200] [165 197 198 140 124] [172 197 138 188 199] [196 198 163 188 200]
+  [176 188 196 188 199] [146 198 199 196 195] [165 195 180 109 181] [180 198 200 199 200]
+The policy is good by 200k in every run but dips now and then (109-140 in 5 of the 32 later evaluations;
+a fresh-clone CI run ended on 129), so a single evaluation is no threshold: the test asserts the best
+evaluation (lowest seen 188) and the mean of the evaluations from 200k on (lowest seen 165).
 """
 
 import importlib.util
@@ -23,9 +28,13 @@ def test_sacflow_learns_cartpole(tmp_path):
     module = algos.get("sacflow")
     config = apply_overrides(module.Config(), {**recipe.RECIPE, "flow_steps": 2})
     run = RunConfig(algo="sacflow", task="cartpole_balance", num_workers=2, envs_per_worker=16, total_steps=450_000,
-                    seed=0, logdir=str(tmp_path / "run"), eval_envs=16)
+                    seed=0, logdir=str(tmp_path / "run"), eval_envs=16, eval_every=100_000)
     summary = Trainer(run, module, config, {}).train()
     rows = [json.loads(line) for line in open(os.path.join(summary["logdir"], "metrics.jsonl"))]
     assert summary["updates"] > 100 and not summary["interrupted"]
     assert all("loss/entropy" in r for r in rows if "loss/critic_loss" in r)
-    assert summary["eval/return"] >= 150.0, summary
+    evals = [(r["step"], r["eval/return"]) for r in rows if "eval/return" in r]
+    assert len(evals) >= 4, evals
+    later = [ret for step, ret in evals if step >= 200_000]
+    assert max(ret for _, ret in evals) >= 175.0, evals
+    assert sum(later) / len(later) >= 140.0, evals
