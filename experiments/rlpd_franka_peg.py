@@ -12,8 +12,8 @@ success only (the episode then ends), as a physical robot's success detector giv
 adds the shaped term). Flags and recipe: ``unilab_jax.robot_cli``.
 """
 
-from unilab_jax.robot_cli import MANIPULATION_RECIPE, STATE_TASK, run_robot_experiment
+from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("rlpd", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         task_recipe=STATE_TASK, dense_reward=False)
+                         observation="state", dense_reward=False)

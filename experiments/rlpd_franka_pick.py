@@ -7,8 +7,8 @@ sampling, the critic ensemble, object state in the policy's observation, success
 pick-and-place task.
 """
 
-from unilab_jax.robot_cli import MANIPULATION_RECIPE, STATE_TASK, run_robot_experiment
+from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("rlpd", "robot_pick_place", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         task_recipe=STATE_TASK, dense_reward=False)
+                         observation="state", dense_reward=False)

@@ -6,8 +6,8 @@ Same networks, observations (``policy_state``), reward (success only), batch and
 ``rlpd_franka_peg.py``; SAC's twin critics and no demonstrations. Flags and recipe: ``unilab_jax.robot_cli``.
 """
 
-from unilab_jax.robot_cli import MANIPULATION_RECIPE, STATE_TASK, run_robot_experiment
+from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("sac", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         task_recipe=STATE_TASK, dense_reward=False)
+                         observation="state", dense_reward=False)

@@ -10,6 +10,7 @@ A task owns a batch of ``num_envs`` MuJoCo environments on the CPU and steps the
                                                     # bootstrapping at truncation, replay buffers)
     out.reward [M], out.terminated [M] bool, out.truncated [M] bool (time limit; never both)
     out.reward_terms {name: [M]}                    # each term's scaled contribution this step
+    task.images()                                   # uint8 [M, H, W, C] of obs, tasks with spec.image_shape
 
 Environments that end (terminated or truncated) are reset inside ``step``; nothing per env
 happens in Python beyond the MuJoCo step calls. Observation/reward math is written against the
@@ -50,6 +51,10 @@ class TaskSpec:
     # True where an episode terminates only by succeeding (the robot tasks): episode and evaluation logs
     # then report the terminated fraction as ``success_rate``.
     success_on_termination: bool = False
+    # ``(H, W, C)`` of the task's image observation (uint8, channels last; () when it has none). A task with
+    # images lists ``image`` / ``next_image`` of this shape in ``transition_fields`` (the images of ``obs`` and
+    # of ``next_obs``, before auto-reset) and returns the images of its current observations from ``images()``.
+    image_shape: tuple[int, ...] = ()
 
 
 class StepOut(NamedTuple):
@@ -108,6 +113,11 @@ class Task(abc.ABC):
 
     def close(self) -> None:  # noqa: B027  (optional hook, not abstract)
         """Releases resources (nothing by default)."""
+
+    def images(self) -> np.ndarray:
+        """uint8 ``[M, *spec.image_shape]``: the images of the observations ``reset`` / ``step`` returned last
+        (what the policy acts on; tasks with ``spec.image_shape`` implement it)."""
+        raise NotImplementedError(f"task {self.spec.name!r} has no image observation")
 
     def render_scene(self, env: int = 0) -> tuple[Any, Any]:
         """``(mujoco.MjModel, mujoco.MjData)`` of env ``env`` in its current state (kinematics computed), for

@@ -10,6 +10,16 @@ Observation (state-based): the robot's ``proprio`` [13], (with ``policy_state``)
 a one-hot of its kind (``KINDS``) and a one-hot of its place in the inventory (the robot's identity; one
 slot without an inventory). Critic observation:
 the observation, the robot's privileged state and the episode time ``t / episode_length``.
+
+Image observation (``cameras``, e.g. ``("front",)``; ``image_size``; ``frame_stack``): beside the observation
+above (the proprioception), the policy sees the cameras' last ``frame_stack`` frames as one uint8 image
+``spec.image_shape = (S, S, 3 x cameras x frame_stack)``, channels ``[frame][camera][rgb]``, the oldest frame
+first. Each env keeps its own stack; an episode starts with its first frame repeated. ``images()`` returns the
+stacks of the current observations (what the policy acts on), and every transition carries ``image`` /
+``next_image`` (the stack of ``obs`` and of ``next_obs``, before auto-reset) as task fields. In-process robots
+render the cameras (``MUJOCO_GL`` must name a working backend, e.g. ``egl``, before mujoco is imported); a
+robot server sends what it renders (``python -m unilab_jax.robots.serve --cameras=front --image_size=64``) and
+must render every camera of ``cameras`` at ``image_size`` (``camera_mismatch``), else it cannot join.
 Reward: the robot's (one term, ``task``). An episode ends when the robot says so (success: terminated;
 its time limit: truncated) or after ``episode_length`` steps (truncated).
 
@@ -38,8 +48,9 @@ import time
 import numpy as np
 
 from tasks import base
+from unilab_jax.fields import IMAGE_FIELDS
 from unilab_jax.robots.client import RobotClient
-from unilab_jax.robots.interface import Robot, RobotClaimed, RobotDisconnected, RobotError
+from unilab_jax.robots.interface import Robot, RobotClaimed, RobotDisconnected, RobotError, RobotSpec
 from unilab_jax.robots.inventory import check_address, compatible
 from unilab_jax.robots.operator import ExpertOperator, OperatorConfig
 
@@ -47,6 +58,7 @@ KINDS = ("franka", "ur5e")
 REWARD_TERMS = ("task",)
 SOURCE_POLICY, SOURCE_OPERATOR = 0, 1
 EPISODE_METRICS = ("intervention_rate", "interventions")
+CAMERAS = ("front", "wrist")  # what the simulated robots render (unilab_jax.robots.sim.CAMERAS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,6 +72,9 @@ class RobotTaskConfig:
     # The policy also sees the robot's privileged state (object poses): a state-based stand-in for cameras,
     # simulated robots only (a physical robot sends no privileged state).
     policy_state: bool = False
+    cameras: tuple[str, ...] = ()  # image observation from these cameras (see the module docstring); (): none
+    image_size: int = 64  # pixels per side of each camera's frame (robot servers must render this size)
+    frame_stack: int = 1  # frames per camera in the image observation (the last ones, oldest first)
     timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
     lease_s: float = 5.0
     connect_timeout_s: float = 60.0  # wait for free robots when the task is built
@@ -85,11 +100,30 @@ class RobotTaskConfig:
             raise ValueError(f"min_envs must be >= 0, got {self.min_envs}")
         if self.arm not in KINDS:
             raise ValueError(f"arm must be one of {KINDS}, got {self.arm!r}")
+        if set(self.cameras) - set(CAMERAS) or len(set(self.cameras)) != len(self.cameras):
+            raise ValueError(f"cameras must be distinct names of {CAMERAS}, got {self.cameras}")
+        if not 16 <= self.image_size <= 256:
+            raise ValueError(f"image_size must be in [16, 256], got {self.image_size}")
+        if self.frame_stack < 1:
+            raise ValueError(f"frame_stack must be >= 1, got {self.frame_stack}")
         self.operator_config()  # checks the operator fields
 
 
 def default_config() -> RobotTaskConfig:
     return RobotTaskConfig()
+
+
+def camera_mismatch(config: RobotTaskConfig, spec: RobotSpec) -> str:
+    """"" when a robot of ``spec`` sends the images ``config`` asks for, else what is missing."""
+    if not config.cameras:
+        return ""
+    missing = [c for c in config.cameras if c not in spec.cameras]
+    size = (config.image_size, config.image_size, 3)
+    if missing or tuple(spec.image_shape) != size:
+        return (f"the task wants cameras {list(config.cameras)} at {size}, the robot renders {list(spec.cameras)} at "
+                f"{tuple(spec.image_shape)} (serve it with --cameras={','.join(config.cameras)} "
+                f"--image_size={config.image_size})")
+    return ""
 
 
 class RobotTask(base.Task):
@@ -116,24 +150,31 @@ class RobotTask(base.Task):
         self.n_ids = max(len(config.robots), 1)
         self.length = min(config.episode_length, spec.episode_length)
         obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids + (spec.privileged_dim if config.policy_state else 0)
+        s = config.image_size
+        image_shape = (s, s, 3 * len(config.cameras) * config.frame_stack) if config.cameras else ()
+        images = tuple((name, image_shape, "uint8") for name in IMAGE_FIELDS) if config.cameras else ()
         self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
                                   critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
                                   episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS,
-                                  transition_fields=(("source", (), "uint8"),), episode_metrics=EPISODE_METRICS,
-                                  success_on_termination=True)
+                                  transition_fields=(("source", (), "uint8"), *images),
+                                  episode_metrics=EPISODE_METRICS, success_on_termination=True, image_shape=image_shape)
+        n = self.num_envs  # fewer than asked when min_envs let the task go on with the robots it claimed
+        self._stack = np.zeros((n, *image_shape), np.uint8)  # each env's frame stack (cameras only)
         self.set_operator(config.operator)
-        self.steps = np.zeros(num_envs, np.int64)
-        self._last = [dict[str, np.ndarray]() for _ in range(num_envs)]
-        self._threads = concurrent.futures.ThreadPoolExecutor(num_envs) if num_envs > 1 else None
+        self.steps = np.zeros(n, np.int64)
+        self._last = [dict[str, np.ndarray]() for _ in range(n)]
+        # In-process cameras render in the thread that created their GL context: no step threads then.
+        threads = n > 1 and not (config.cameras and not config.robots)
+        self._threads = concurrent.futures.ThreadPoolExecutor(n) if threads else None
 
     # ---- robots ---------------------------------------------------------------------------------------
     def _make_local(self) -> None:
         from unilab_jax.robots.sim import SimConfig, SimRobot
 
         for i in range(self.num_envs):
-            robot = SimRobot(SimConfig(arm=self.config.arm, task=self.task_name, cameras=(), speed=float("inf"),
-                                       reset_seconds=0.0, dense_reward=self.config.dense_reward,
-                                       seed=self.seed * 1000 + i))
+            robot = SimRobot(SimConfig(arm=self.config.arm, task=self.task_name, cameras=self.config.cameras,
+                                       image_size=self.config.image_size, speed=float("inf"), reset_seconds=0.0,
+                                       dense_reward=self.config.dense_reward, seed=self.seed * 1000 + i))
             robot.connect()
             self.robots.append(robot)
             self.slots.append(0)
@@ -150,11 +191,12 @@ class RobotTask(base.Task):
         except BaseException:
             client.close()
             raise
-        if client.spec.task != self.task_name or (self.robots and compatible(self.robots[0].spec, client.spec)):
+        problem = ((compatible(self.robots[0].spec, client.spec) if self.robots else "")
+                   or camera_mismatch(c, client.spec))
+        if client.spec.task != self.task_name or problem:
             client.close()
             raise ValueError(f"robot {c.robots[slot]} ({client.spec.name}, task {client.spec.task}) cannot join "
-                             f"task robot_{self.task_name}"
-                             + (f": {compatible(self.robots[0].spec, client.spec)}" if self.robots else ""))
+                             f"task robot_{self.task_name}" + (f": {problem}" if problem else ""))
         return client
 
     def _claim_initial(self) -> None:
@@ -222,6 +264,21 @@ class RobotTask(base.Task):
         pairs = [self._obs(i, self._last[i]) for i in range(self.num_envs)]
         return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
 
+    def _frames(self, envs) -> np.ndarray:
+        """uint8 [len(envs), S, S, 3 x cameras]: the current frame of each env in ``envs`` (cameras in order)."""
+        return np.stack([np.concatenate([self._last[i][c] for c in self.config.cameras], axis=-1) for i in envs])
+
+    def _restack(self, envs) -> None:
+        """Starts the frame stacks of ``envs`` (new episodes): the current frame repeated."""
+        envs = list(envs)
+        if self.config.cameras and envs:
+            self._stack[envs] = np.tile(self._frames(envs), (1, 1, 1, self.config.frame_stack))
+
+    def images(self) -> np.ndarray:
+        if not self.config.cameras:
+            return super().images()
+        return self._stack
+
     def _map(self, fn, *args) -> list:
         """``fn(i, *args_i)`` for every env, concurrently; an exception is returned in its place."""
 
@@ -243,6 +300,7 @@ class RobotTask(base.Task):
         self.steps[:] = 0
         for op in self.operators:
             op.reset()
+        self._restack(range(self.num_envs))
 
     def set_operator(self, mode: str) -> None:
         """Switches the operator channel (``off``, ``gate``, ``always``; HG-DAgger's phases); call ``reset`` next."""
@@ -284,6 +342,12 @@ class RobotTask(base.Task):
         next_obs, next_critic = self._observe_all()
         done = np.flatnonzero(term | trunc)
         obs, critic = next_obs, next_critic
+        if self.config.cameras:  # shift each stack by one frame (new arrays: images() handed out stay valid)
+            per_frame = 3 * len(self.config.cameras)
+            extras["image"] = self._stack
+            extras["next_image"] = np.concatenate([self._stack[..., per_frame:], self._frames(range(self.num_envs))],
+                                                  axis=-1)
+            self._stack = extras["next_image"].copy() if done.size else extras["next_image"]
         if done.size:
             fresh = self._map(lambda i, d: self.robots[i].reset() if d else None, list(term | trunc))
             for i in done:  # the step happened: a robot lost while resetting starts its next episode on return
@@ -291,6 +355,7 @@ class RobotTask(base.Task):
                 if self.operators:
                     self.operators[i].reset()
             self.steps[done] = 0
+            self._restack(done)
             obs, critic = self._observe_all()
         return base.StepOut(obs, critic, next_obs, next_critic, reward, term, trunc, {"task": reward.copy()}, extras)
 

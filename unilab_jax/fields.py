@@ -10,3 +10,13 @@ def replay_fields(spec: object) -> tuple[str, ...]:
     """The replay batch of a task: ``REPLAY_FIELDS`` and the task's own ``transition_fields`` (e.g. the robot
     tasks' ``source``), which learners that do not read them ignore."""
     return REPLAY_FIELDS + tuple(name for name, _, _ in getattr(spec, "transition_fields", ()))
+
+# A task with an image observation (``spec.image_shape``) adds these transition fields: uint8 ``[..., H, W, C]``,
+# the images of ``obs`` and of ``next_obs`` (before auto-reset).
+IMAGE_FIELDS = ("image", "next_image")
+
+
+def prior_fields(spec: object) -> tuple[str, ...]:
+    """The fields of prior data (demonstrations) for a task: ``REPLAY_FIELDS`` and, on tasks with images,
+    ``IMAGE_FIELDS`` (not the task's other fields, such as the robot tasks' ``source``)."""
+    return REPLAY_FIELDS + (IMAGE_FIELDS if getattr(spec, "image_shape", ()) else ())

@@ -97,6 +97,15 @@ class SceneRenderer:
         self._renderer.close()
 
 
+def deterministic_policy(module: Any, weights: dict, task: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """``obs -> action`` of the deterministic worker policy ``module.act(weights, obs, zeros, True)`` on ``task``'s
+    envs; on a task with images (``spec.image_shape``) it also acts on the task's current ``images()``."""
+    zeros = np.zeros((task.num_envs, task.spec.action_dim), np.float32)
+    if getattr(task.spec, "image_shape", ()):
+        return lambda obs: module.act(weights, obs, zeros, True, image=task.images())[0]
+    return lambda obs: module.act(weights, obs, zeros, True)[0]
+
+
 def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_steps: int | None = None,
                  render: tuple[int, int] | None = None,
                  stop: threading.Event | None = None) -> tuple[np.ndarray, dict[str, float]]:
@@ -158,7 +167,8 @@ def run_policy(run: saved_run.SavedRun, *, episodes: int = 1, max_steps: int | N
         raise ValueError(f"episodes must be at least 1, got {episodes}")
     task = run.make_task(episodes, seed=10_000 + seed, overrides=task_overrides)
     try:
-        frames, stats = run_episodes(task, run.act, max_steps=max_steps, render=render)
+        frames, stats = run_episodes(task, deterministic_policy(run.module, run.weights, task), max_steps=max_steps,
+                                     render=render)
     finally:
         task.close()
     return frames, {"algo": run.algo, "task": run.task, "checkpoint": run.step, **stats, "fps": fps_of(run.spec)}
@@ -241,8 +251,7 @@ class ClipRecorder:
         try:
             task = tasks.make(tr.run.task, num_envs=1, seed=10_000 + env_steps, overrides=tr.task_overrides)
             try:
-                zeros = np.zeros((1, tr.spec.action_dim), np.float32)
-                frames, _ = run_episodes(task, lambda obs: tr.algo.act(weights, obs, zeros, True)[0],
+                frames, _ = run_episodes(task, deterministic_policy(tr.algo, weights, task),
                                          max_steps=max(1, round(self.MAX_CLIP_S / tr.spec.ctrl_dt)),
                                          render=(self.WIDTH, self.HEIGHT))
             finally:

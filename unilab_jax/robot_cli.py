@@ -7,9 +7,14 @@ tasks through robot servers. ``experiments/sac_franka_pick.py`` and its siblings
 Flags beside the shared ones (``unilab_jax.cli``):
 
 * ``--robots``: a comma list or a ``.toml`` inventory (``unilab_jax.robots.inventory``): ``sim:NAME`` robots are
-  started here as local robot servers (``--speed`` times real time, no cameras; stopped at exit; dense reward
-  or success only: ``--dense_reward``, default the experiment's),
-  ``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and health first.
+  started here as local robot servers (``--speed`` times real time, rendering the cameras of the image
+  observation, else none; stopped at exit; dense reward or success only: ``--dense_reward``, default the
+  experiment's), ``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and
+  health first (and must render the task's cameras at its ``image_size``).
+* ``--observation``: what the policy sees besides proprioception: ``images`` (``IMAGE_TASK``: the front camera's
+  last 3 frames at 64 x 64, uint8; ``--task_config=cameras=...,image_size=...,frame_stack=...`` change it),
+  ``state`` (``STATE_TASK``: the robot's privileged object state, the state-based comparison) or ``proprio``
+  (nothing more); default: the experiment's. Images need an algorithm that reads them (the pixel learners).
 * Assignment: one robot per rollout worker (``--num_workers`` defaults to, and ``auto`` is, the number of robots,
   less the ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
   Periodic evaluation (``--eval_every``) needs robots the workers leave free: ``num_workers x envs_per_worker
@@ -48,6 +53,8 @@ MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), 
                        "updates_per_call": 16, "publish_every": 16, "utd": 4.0, "learning_starts": 300,
                        "replay_capacity": 200_000, "gamma": 0.95}
 STATE_TASK = {"policy_state": True}
+IMAGE_TASK = {"cameras": ("front",), "image_size": 64, "frame_stack": 3}
+OBSERVATIONS = {"images": IMAGE_TASK, "state": STATE_TASK, "proprio": {}}
 EVAL_CONNECT_S = 10.0  # how long an evaluation waits for robots before going on with those that answer
 
 flags.DEFINE_string("robots", "sim:franka_emika_panda", "robot inventory: comma list of sim:NAME and "
@@ -58,6 +65,8 @@ flags.DEFINE_string("demos", "", "prior data (RLPD): a replay store of demonstra
 flags.DEFINE_bool("dense_reward", None, "sim: robots this run starts: dense shaped reward plus the success bonus "
                   "(else 1 on success only); default: the experiment's")
 flags.DEFINE_integer("num_demos", 20, "scripted-expert episodes recorded when --demos is not given (RLPD)")
+flags.DEFINE_enum("observation", None, list(OBSERVATIONS), "what the policy sees besides proprioception: images "
+                  "(camera frames), state (the object state) or proprio (nothing else); default: the experiment's")
 
 
 def robot_entries() -> list:
@@ -90,11 +99,14 @@ def report_robots(addresses: list[str], task: str) -> list:
 
 
 def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
-              default_total_steps: int) -> tuple:
+              default_total_steps: int, observation: str) -> tuple:
+    from unilab_jax.trainer import check_images
+
     try:
         entries = robot_entries()
     except ValueError as e:
         raise FlagError(str(e)) from e
+    task_recipe = {**OBSERVATIONS[FLAGS.observation or observation], **task_recipe}
     n = len(entries)
     periodic = FLAGS.eval_every > 0
     if not FLAGS["eval_envs"].present:
@@ -116,6 +128,10 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     if FLAGS.serial:
         raise FlagError("--serial: robot tasks step robot servers from worker processes")
     run, module, config, task_overrides = build_run(algo, task, recipe, task_recipe, default_total_steps)
+    try:
+        check_images(module, bool(task_overrides.get("cameras")), algo)
+    except ValueError as e:
+        raise FlagError(f"--observation=images: {e}") from e
     if not run.task.startswith("robot_"):
         raise FlagError(f"--task={run.task}: this experiment drives robots (robot_pick_place, robot_peg_insertion)")
     if "robots" in task_overrides:
@@ -151,6 +167,8 @@ def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tu
 
 
 def _train(validated: tuple, dense_reward: bool) -> None:
+    import tasks
+    from unilab_jax.config import apply_overrides
     from unilab_jax.robots import inventory
     from unilab_jax.runtime.prior import PriorDataError
     from unilab_jax.trainer import Trainer
@@ -158,8 +176,12 @@ def _train(validated: tuple, dense_reward: bool) -> None:
     entries, (run, module, config, task_overrides) = validated
     robot_task = run.task.removeprefix("robot_")
     dense = dense_reward if FLAGS.dense_reward is None else FLAGS.dense_reward
-    with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense) as inv:
+    cameras, image_size = task_overrides.get("cameras", ()), task_overrides.get("image_size", 64)
+    with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense, cameras=cameras,
+                             image_size=image_size) as inv:
         found = report_robots(inv.addresses, robot_task)
+        if cameras:
+            _check_cameras(found, apply_overrides(tasks.default_config(run.task), task_overrides), config)
         demo_s = 0.0
         if hasattr(config, "prior_dir"):
             prior_dir, demo_s = _demos(inv.addresses, run, task_overrides)
@@ -179,13 +201,31 @@ def _train(validated: tuple, dense_reward: bool) -> None:
     print(f"logs: {summary['logdir']}  checkpoints: {summary['checkpoints']}")
 
 
+def _check_cameras(found: list, task_config: Any, config: Any) -> None:
+    """Every robot renders the image observation's cameras at its size (exits 2 if not); prints the image memory."""
+    from tasks.robot import camera_mismatch
+
+    for robot in found:
+        problem = camera_mismatch(task_config, robot.spec)
+        if problem:
+            print(f"error: robot {robot.address} ({robot.spec.name}): {problem}", file=sys.stderr)
+            sys.exit(2)
+    s, c = task_config.image_size, 3 * len(task_config.cameras) * task_config.frame_stack
+    per = 2 * s * s * c  # image + next_image, uint8
+    print(f"image observation {s}x{s}x{c} uint8 ({','.join(task_config.cameras)} x {task_config.frame_stack} frames): "
+          f"{per / 1024:.0f} KiB of images per transition, {config.replay_capacity * per / 2**30:.2f} GiB for "
+          f"replay_capacity={config.replay_capacity} in shared memory", flush=True)
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt  # unwinds through Inventory, which stops the servers this run started
 
 
 def run_robot_experiment(algo: str, task: str, recipe: Mapping[str, Any], default_total_steps: int,
-                         task_recipe: Mapping[str, Any] | None = None, dense_reward: bool = True) -> None:
-    """Parses and validates the flags, starts the robots (and records demonstrations), trains, prints the summary."""
+                         task_recipe: Mapping[str, Any] | None = None, dense_reward: bool = True,
+                         observation: str = "proprio") -> None:
+    """Parses and validates the flags, starts the robots (and records demonstrations), trains, prints the summary.
+    ``observation``: the default of ``--observation`` (``OBSERVATIONS``; ``task_recipe`` goes on top)."""
     signal.signal(signal.SIGTERM, _terminate)
-    launch(lambda: _validate(algo, task, recipe, task_recipe or {}, default_total_steps),
+    launch(lambda: _validate(algo, task, recipe, task_recipe or {}, default_total_steps, observation),
            lambda validated: _train(validated, dense_reward), errors=(ValueError,))  # config checks: exit 2

@@ -18,6 +18,7 @@ donation; on the CPU, where an update can take minutes, nothing is donated.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 import logging
 import math
@@ -36,7 +37,7 @@ import numpy as np
 
 from unilab_jax import algos, nets
 from unilab_jax.core import rlpd
-from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS, replay_fields
+from unilab_jax.fields import TRAJECTORY_FIELDS, prior_fields, replay_fields
 from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.xp import tree_leaves
@@ -101,6 +102,13 @@ def _donated(tree: Any) -> bool:
     return any(getattr(leaf, "is_deleted", lambda: False)() for leaf in tree_leaves(tree))
 
 
+def check_images(algo_module: Any, images: bool, name: str) -> None:
+    """ValueError when a task with an image observation meets an algorithm whose ``act`` takes no ``image=``."""
+    if images and "image" not in inspect.signature(algo_module.act).parameters:
+        raise ValueError(f"the task observes images, and {name} does not read them (its act takes no image=): "
+                         "image observations need the pixel learners")
+
+
 class Trainer:
     _STOP_GRACE_S = 2.0  # after a stop, how long the loop still waits for the update in flight
     def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
@@ -118,6 +126,7 @@ class Trainer:
         probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
         self.spec = probe.spec
         probe.close()
+        check_images(algo_module, bool(getattr(self.spec, "image_shape", ())), run.algo)
         self.xp = _learner_platform(run.platform)
         self.learner = algos.make_learner(algo_module, run.platform, algo_config, self.spec)
         self.parallel = None  # the DataParallel learner of --devices > 1
@@ -223,7 +232,7 @@ class Trainer:
             return None
         from unilab_jax.runtime.prior import load_prior
 
-        prior = load_prior(directory, self._row_layout(REPLAY_FIELDS))
+        prior = load_prior(directory, self._row_layout(prior_fields(self.spec)))
         log.info("prior data: %d transitions from %s", len(prior["reward"]), directory)
         return prior
 
@@ -233,15 +242,14 @@ class Trainer:
         task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
         before it ends."""
         import tasks
-        from unilab_jax.play import run_episodes
+        from unilab_jax.play import deterministic_policy, run_episodes
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
                           overrides=self.eval_overrides)
         if hasattr(task, "set_operator"):  # the policy alone: no operator interventions while evaluating
             task.set_operator("off")
-        zeros = np.zeros((task.num_envs, self.spec.action_dim), np.float32)
         try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
-            _, stats = run_episodes(task, lambda obs: self.algo.act(weights, obs, zeros, True)[0], stop=stop)
+            _, stats = run_episodes(task, deterministic_policy(self.algo, weights, task), stop=stop)
         finally:
             task.close()
         result = {f"eval/{k}": v for k, v in stats.items()}
@@ -797,7 +805,7 @@ class _ReplaySource:
                     batch = self._tiers.sample(u, b, rng)
                 out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:]))
                        for k in replay_fields(self._pool.spec)}
-            if b_prior:  # the prior data holds the replay fields only: the task's own (``source``) are left out
+            if b_prior:  # the prior data holds fields.prior_fields only: the task's others (``source``) are left out
                 idx = rng.integers(0, len(self._prior["reward"]), size=u * b_prior)
                 out = rlpd.compose({k: out[k] for k in self._prior},
                                    {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))

@@ -11,9 +11,10 @@ An inventory is a comma list (``--robots``) or a TOML file::
     address = "tcp://192.168.1.20:5555"
 
 ``sim:NAME`` starts a local robot server subprocess for the Menagerie model NAME (on a free loopback
-port, no cameras); ``tcp://HOST:PORT`` is a server that is already running. ``discover`` asks each server
-for its spec and health (without claiming it) and refuses robots a policy cannot share (another task,
-other observation or action sizes). Imports the standard library and this package only.
+port; the cameras a run's image observation needs, else none); ``tcp://HOST:PORT`` is a server that is
+already running. ``discover`` asks each server for its spec and health (without claiming it) and refuses robots
+a policy cannot share (another task, other observation or action sizes). Imports the standard library and this
+package only.
 """
 
 from __future__ import annotations
@@ -101,14 +102,15 @@ def parse(text: str) -> list[RobotEntry]:
 
 
 class LocalServer:
-    """A ``python -m unilab_jax.robots.serve`` subprocess on a free loopback port (no cameras); it stops by
-    itself when the process that started it dies, even by SIGKILL (``--exit_with_parent``)."""
+    """A ``python -m unilab_jax.robots.serve`` subprocess on a free loopback port (rendering ``cameras`` at
+    ``image_size``; none by default); it stops by itself when the process that started it dies, even by SIGKILL
+    (``--exit_with_parent``)."""
 
     def __init__(self, arm: str, task: str, speed: float, seed: int = 0, port: int = 0,
-                 extra: tuple[str, ...] = ("--dense_reward",)):
+                 extra: tuple[str, ...] = ("--dense_reward",), cameras: tuple[str, ...] = (), image_size: int = 64):
         cmd = [sys.executable, "-m", "unilab_jax.robots.serve", f"--robot={arm}", f"--task={task}",
-               f"--speed={speed}", "--cameras=none", "--host=127.0.0.1", f"--port={port}", f"--seed={seed}",
-               "--exit_with_parent", *extra]
+               f"--speed={speed}", f"--cameras={','.join(cameras) or 'none'}", f"--image_size={image_size}",
+               "--host=127.0.0.1", f"--port={port}", f"--seed={seed}", "--exit_with_parent", *extra]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env={**os.environ, "OMP_NUM_THREADS": "1"})
         lines: queue.Queue[str] = queue.Queue()
@@ -139,11 +141,14 @@ class LocalServer:
 
 class Inventory:
     """Starts the local servers of ``entries`` (``with Inventory(...) as inv: inv.addresses``); stops them
-    on exit, also when starting one of them fails (``dense_reward``: the servers' reward, else success only)."""
+    on exit, also when starting one of them fails (``dense_reward``: the servers' reward, else success only;
+    ``cameras`` / ``image_size``: what they render)."""
 
-    def __init__(self, entries: list[RobotEntry], task: str, speed: float, seed: int = 0, dense_reward: bool = True):
+    def __init__(self, entries: list[RobotEntry], task: str, speed: float, seed: int = 0, dense_reward: bool = True,
+                 cameras: tuple[str, ...] = (), image_size: int = 64):
         self.entries, self.task, self.speed, self.seed = entries, task, speed, seed
         self.extra = ("--dense_reward",) if dense_reward else ()
+        self.cameras, self.image_size = tuple(cameras), image_size
         self.servers: list[LocalServer] = []
         self.addresses: list[str] = []
 
@@ -152,7 +157,8 @@ class Inventory:
             for i, e in enumerate(self.entries):
                 if e.sim:
                     self.servers.append(LocalServer(SIM_ROBOTS[e.sim], self.task, self.speed, seed=self.seed + i,
-                                                    extra=self.extra))
+                                                    extra=self.extra, cameras=self.cameras,
+                                                    image_size=self.image_size))
                     self.addresses.append(self.servers[-1].address)
                 else:
                     self.addresses.append(e.address)

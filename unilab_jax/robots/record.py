@@ -2,6 +2,7 @@
 
     python -m unilab_jax.robots.record --robots=sim:franka_emika_panda --task=robot_peg_insertion \\
         --episodes=20 --out=demos/peg [--speed=20] [--device=expert|keyboard|spacemouse]
+        [--cameras=front --image_size=64 --frame_stack=3]
 
 ``--robots``: an inventory (``robots.inventory``: ``sim:NAME`` servers are started here at ``--speed``,
 ``tcp://HOST:PORT`` ones are already running). The robots run the task ``robots.robot_*`` as training
@@ -9,8 +10,12 @@ does (``tasks.robot``: same observations, same one-hot of each robot's place in 
 transitions fit a training run on the same inventory. A ``TeleopDevice`` (``robots.teleop``) drives
 each robot: the scripted expert by default (robots in parallel), a keyboard (one robot).
 
+With ``--cameras`` the task has its image observation (``tasks.robot``; ``sim:`` servers render those cameras
+at ``--image_size``) and the transitions carry ``image`` / ``next_image`` (uint8 frame stacks) as well: record
+with the image options of the training run that will load the demonstrations.
+
 Output: a :class:`~unilab_jax.runtime.replay_store.ReplayStore` in ``--out`` (which must be empty) with
-the replay fields of the task (``unilab_jax.fields.REPLAY_FIELDS``) plus per transition ``episode``
+the prior-data fields of the task (``unilab_jax.fields.prior_fields``) plus per transition ``episode``
 (int32, the episode's number in the recording) and ``success`` (bool, whether that episode succeeded:
 its label). Only whole episodes are written, in the order they ended; the index's ``info`` names the
 task, device and robots. Prints one JSON summary line (episodes, successes, transitions, robot seconds).
@@ -27,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from unilab_jax.fields import REPLAY_FIELDS
+from unilab_jax.fields import IMAGE_FIELDS, prior_fields
 from unilab_jax.robots import inventory, teleop
 
 TASKS = ("robot_pick_place", "robot_peg_insertion")
@@ -35,11 +40,12 @@ LABEL_FIELDS = {"episode": ((), np.dtype(np.int32)), "success": ((), np.dtype(bo
 
 
 def demo_layout(spec: Any) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
-    """The store's row layout for a task spec: the replay fields and the labels."""
+    """The store's row layout for a task spec: the prior-data fields (with images where the task has them) and the
+    labels."""
     from unilab_jax.runtime.buffers import transition_layout
 
     layout = transition_layout(spec)
-    return {**{k: layout[k] for k in REPLAY_FIELDS}, **LABEL_FIELDS}
+    return {**{k: layout[k] for k in prior_fields(spec)}, **LABEL_FIELDS}
 
 
 def _privileged(task: Any, critic_obs: np.ndarray) -> dict[str, np.ndarray]:
@@ -86,6 +92,8 @@ def record(addresses: list[str], task_name: str, episodes: int, out: str, device
 
 def _run(task: Any, devices: list, store: Any, episodes: int) -> dict[str, Any]:
     n = task.num_envs
+    fields = prior_fields(task.spec)
+    images = [k for k in IMAGE_FIELDS if k in fields]
     obs, critic = task.reset()
     for d in devices:
         d.reset()
@@ -98,10 +106,11 @@ def _run(task: Any, devices: list, store: Any, episodes: int) -> dict[str, Any]:
         for i in range(n):
             rows[i].append({"obs": obs[i], "critic_obs": critic[i], "action": action[i], "reward": out.reward[i],
                             "next_obs": out.next_obs[i], "next_critic_obs": out.next_critic_obs[i],
-                            "terminated": out.terminated[i], "truncated": out.truncated[i]})
+                            "terminated": out.terminated[i], "truncated": out.truncated[i],
+                            **{k: out.extras[k][i] for k in images}})
             if (out.terminated[i] or out.truncated[i]) and done_episodes < episodes:
                 success = bool(out.terminated[i])  # a robot task terminates on success only
-                batch = {k: np.stack([r[k] for r in rows[i]]) for k in REPLAY_FIELDS}
+                batch = {k: np.stack([r[k] for r in rows[i]]) for k in fields}
                 batch["episode"] = np.full(len(rows[i]), done_episodes, np.int32)
                 batch["success"] = np.full(len(rows[i]), success)
                 store.append(batch)
@@ -132,7 +141,22 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--device", default="expert", help=f"one of {teleop.DEVICES}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--policy_state", action="store_true", help="record for runs with --task_config=policy_state=true")
+    p.add_argument("--cameras", default="", help="image observation from these cameras (comma list of front, wrist; "
+                   "empty: none): record for runs with the same --task_config=cameras")
+    p.add_argument("--image_size", type=int, default=64, help="pixels per side of each camera frame (with --cameras)")
+    p.add_argument("--frame_stack", type=int, default=1, help="frames per camera in the image (with --cameras)")
     return p.parse_args(argv)
+
+
+def task_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The task overrides of the flags (checked by the task's config: ValueError for bad image options)."""
+    from tasks.robot import RobotTaskConfig
+
+    cameras = tuple(c.strip() for c in args.cameras.split(",") if c.strip())
+    overrides = {"policy_state": args.policy_state, "cameras": cameras, "image_size": args.image_size,
+                 "frame_stack": args.frame_stack}
+    RobotTaskConfig(**overrides)
+    return overrides
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -153,12 +177,13 @@ def main(argv: list[str] | None = None) -> int:
         if os.path.isdir(args.out) and os.listdir(args.out):
             raise ValueError(f"--out={args.out!r} is not empty: record into a new folder")
         entries = inventory.parse(args.robots)
+        overrides = task_overrides(args)
     except (ValueError, teleop.SpaceMouseUnavailable) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    with inventory.Inventory(entries, args.task.removeprefix("robot_"), args.speed, seed=args.seed) as inv:
-        summary = record(inv.addresses, args.task, args.episodes, args.out, args.device, args.seed,
-                         {"policy_state": args.policy_state})
+    with inventory.Inventory(entries, args.task.removeprefix("robot_"), args.speed, seed=args.seed,
+                             cameras=overrides["cameras"], image_size=args.image_size) as inv:
+        summary = record(inv.addresses, args.task, args.episodes, args.out, args.device, args.seed, overrides)
     print(json.dumps(summary), flush=True)
     return 0
 

@@ -159,6 +159,7 @@ class Worker:
         self._interrupted = tasks.base.StepInterrupted
         self.spec = self.task.spec
         self._task_fields = [name for name, _, _ in getattr(self.spec, "transition_fields", ())]
+        self._images = bool(getattr(self.spec, "image_shape", ()))  # the policy acts on task.images() too
         self._episode_metrics = tuple(getattr(self.spec, "episode_metrics", ()))
         self._reset_envs = getattr(self.task, "reset_envs", None)
         self.m = args.envs_per_worker
@@ -240,7 +241,10 @@ class Worker:
                 self._set_weights(*got)
         t0 = time.perf_counter()
         noise = self._exploration_noise()
-        action, extras = self.algo.act(self.params, self.obs, noise, False)
+        if self._images:
+            action, extras = self.algo.act(self.params, self.obs, noise, False, image=self.task.images())
+        else:
+            action, extras = self.algo.act(self.params, self.obs, noise, False)
         action = np.asarray(action, dtype=np.float32)
         if not self._extras_checked:
             self._check_extras(action, extras)
