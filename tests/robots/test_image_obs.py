@@ -1,0 +1,175 @@
+"""Image observations of the robot tasks: frame stacks by hand, camera checks, and the uint8 image path from the
+robot to the learner's batch, byte for byte (worker processes, shared-memory replay, disk store, prior data,
+device mirror)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import robot_image_algo
+import robot_toy_algo
+from pattern_robot import PROPRIO, frame, serving
+
+import tasks
+from unilab_jax import xp as shim
+from unilab_jax.fields import IMAGE_FIELDS, REPLAY_FIELDS, prior_fields, replay_fields
+from unilab_jax.play import deterministic_policy, run_episodes
+from unilab_jax.robots import record
+from unilab_jax.runtime.buffers import transition_layout
+from unilab_jax.runtime.pool import WorkerPool
+from unilab_jax.runtime.prior import load_prior
+from unilab_jax.runtime.replay_store import ReplayStore
+from unilab_jax.trainer import _ReplaySource, check_images
+
+CAMERAS, SIZE, STACK = ("wrist", "front"), 16, 3  # the task's camera order differs from the server's (front, wrist)
+IMAGES = {"cameras": CAMERAS, "image_size": SIZE, "frame_stack": STACK}
+PER_FRAME = 3 * len(CAMERAS)
+ZERO = np.zeros((1, 7), np.float32)
+
+
+def frames_of(obs: np.ndarray) -> np.ndarray:
+    """[S, S, 6]: the frame the pattern robot sent with an observation (the task's camera order)."""
+    return np.concatenate([frame(obs[:PROPRIO], c, SIZE) for c in CAMERAS], axis=-1)
+
+
+def test_frame_stacks_by_hand():
+    """One robot, episodes of 4 steps: the stacks are [f0 f0 f0], [f0 f0 f1], [f0 f1 f2], ... (oldest first),
+    ``image`` / ``next_image`` are the stacks of obs / next_obs, and a new episode repeats its first frame."""
+    with serving(1) as addresses:
+        task = tasks.make("robot_peg_insertion", 1, 0, {"robots": tuple(addresses), **IMAGES, "episode_length": 4})
+        try:
+            assert task.spec.image_shape == (SIZE, SIZE, 3 * 2 * 3)
+            assert ("image", (SIZE, SIZE, 18), "uint8") in task.spec.transition_fields
+            obs, _ = task.reset()
+            f = [frames_of(obs[0])]
+            stack = lambda *k: np.concatenate([f[i] for i in k], axis=-1)  # noqa: E731
+            np.testing.assert_array_equal(task.images()[0], stack(0, 0, 0))
+            want = [((0, 0, 0), (0, 0, 1)), ((0, 0, 1), (0, 1, 2)), ((0, 1, 2), (1, 2, 3)), ((1, 2, 3), (2, 3, 4))]
+            for t, (image, next_image) in enumerate(want):
+                out = task.step(ZERO)
+                f.append(frames_of(out.next_obs[0]))
+                assert out.extras["image"].dtype == np.uint8 and out.extras["image"].shape == (1, SIZE, SIZE, 18)
+                np.testing.assert_array_equal(out.extras["image"][0], stack(*image))
+                np.testing.assert_array_equal(out.extras["next_image"][0], stack(*next_image))
+                assert bool(out.truncated[0]) == (t == 3)
+                if t < 3:
+                    np.testing.assert_array_equal(task.images()[0], stack(*next_image))
+            f.append(frames_of(out.obs[0]))  # f[5]: the first frame of the next episode
+            assert not np.array_equal(f[5], f[4])
+            np.testing.assert_array_equal(task.images()[0], stack(5, 5, 5))
+            out = task.step(ZERO)
+            f.append(frames_of(out.next_obs[0]))
+            np.testing.assert_array_equal(out.extras["next_image"][0], stack(5, 5, 6))
+            # evaluation / play act on the task's current images (the algorithm refuses to act without them)
+            _, stats = run_episodes(task, deterministic_policy(robot_image_algo, {}, task), max_steps=3)
+            assert stats["episode_length"] == 3
+        finally:
+            task.close()
+
+
+def test_camera_and_config_mismatches_are_refused():
+    with serving(1, cameras=("front",), size=SIZE) as addresses:
+        for bad, message in [({"cameras": ("wrist",)}, r"renders \['front'\]"),
+                             ({"image_size": 32}, r"at \(32, 32, 3\), the robot renders \['front'\] at \(16, 16, 3\)")]:
+            with pytest.raises(ValueError, match=message):
+                tasks.make("robot_peg_insertion", 1, 0, {"robots": tuple(addresses), **IMAGES, **bad})
+    for bad in ({"cameras": ("top",)}, {"cameras": ("front", "front")}, {"image_size": 8}, {"frame_stack": 0}):
+        with pytest.raises(ValueError):
+            tasks.make("robot_peg_insertion", 1, 0, {**IMAGES, **bad})
+    with pytest.raises(ValueError, match="need the pixel learners"):
+        check_images(robot_toy_algo, True, "toy")
+    check_images(robot_image_algo, True, "toy")
+    check_images(robot_toy_algo, False, "toy")
+
+
+def test_rendered_images_through_a_robot_server(serve, gl_backend):
+    """A real server rendering its front camera (MuJoCo on the GL backend found here) into a 2-frame stack."""
+    server = serve("--robot=franka", "--task=peg_insertion", "--speed=50", "--reset_s=0", "--cameras=front",
+                   "--image_size=32", env={"MUJOCO_GL": gl_backend})
+    task = tasks.make("robot_peg_insertion", 1, 0, {"robots": (server.address,), "cameras": ("front",),
+                                                      "image_size": 32, "frame_stack": 2})
+    try:
+        task.reset()
+        first = task.images()[0]
+        assert first.shape == (32, 32, 6) and first.dtype == np.uint8 and first.std() > 5  # a scene, not a blank
+        np.testing.assert_array_equal(first[..., :3], first[..., 3:])
+        out = task.step(np.array([[0, 0, -1, 0, 0, 0, 1]], np.float32))
+        np.testing.assert_array_equal(out.extras["image"][0], first)
+        np.testing.assert_array_equal(out.extras["next_image"][0, ..., :3], first[..., 3:])
+    finally:
+        task.close()
+    with pytest.raises(ValueError, match="--image_size=64"):
+        tasks.make("robot_peg_insertion", 1, 0, {"robots": (server.address,), "cameras": ("front",)})
+
+
+def _check_rows(batch: dict, what: str) -> int:
+    """Every row's images are the robot's frames of its obs / next_obs; returns the rows that start an episode."""
+    image, next_image = np.asarray(batch["image"]), np.asarray(batch["next_image"])
+    obs, next_obs = np.asarray(batch["obs"]), np.asarray(batch["next_obs"])
+    assert image.dtype == next_image.dtype == np.uint8, what
+    image, next_image = image.reshape(-1, SIZE, SIZE, 18), next_image.reshape(-1, SIZE, SIZE, 18)
+    obs, next_obs = obs.reshape(len(image), -1), next_obs.reshape(len(image), -1)
+    starts = np.asarray(batch["critic_obs"]).reshape(len(image), -1)[:, -1] == 0
+    for i in range(len(image)):
+        assert image[i, ..., -PER_FRAME:].tobytes() == frames_of(obs[i]).tobytes(), (what, i)
+        assert next_image[i, ..., -PER_FRAME:].tobytes() == frames_of(next_obs[i]).tobytes(), (what, i)
+        assert next_image[i, ..., :-PER_FRAME].tobytes() == image[i, ..., PER_FRAME:].tobytes(), (what, i)
+        if starts[i]:
+            assert image[i].tobytes() == np.tile(image[i, ..., -PER_FRAME:], (1, 1, STACK)).tobytes(), (what, i)
+    return int(starts.sum())
+
+
+def test_images_arrive_byte_exact_in_learner_batches(tmp_path):
+    """Two pattern robots behind servers, two worker processes: demonstrations recorded with images (the prior
+    data), replay in shared memory, a disk store and the device mirror. Every row of the learner's batches holds
+    the frames the robot sent with its obs / next_obs (uint8 all the way), and the policy acted on that image."""
+    with serving(2) as addresses:
+        overrides = {"robots": tuple(addresses), **IMAGES, "episode_length": 12}
+        demos = str(tmp_path / "demos")
+        summary = record.record(list(addresses), "robot_peg_insertion", 2, demos, overrides=overrides)
+        assert summary["episodes"] == 2
+        pool = WorkerPool("robot_peg_insertion", overrides, num_workers=2, envs_per_worker=1,
+                          algo_module="robot_image_algo", weight_template={"w": np.zeros(1, np.float32)},
+                          replay_capacity=500)
+        with pool:
+            assert pool.buffer.fields["image"] == ((SIZE, SIZE, 18), np.dtype(np.uint8))
+            pool.start()
+            pool.publish({"w": np.zeros(1, np.float32)}, 1)
+            deadline = time.monotonic() + 120
+            while pool.env_steps() < 300:
+                assert time.monotonic() < deadline, "the workers did not produce 300 steps"
+                time.sleep(0.05)
+            raw = pool.sample(256, np.random.default_rng(0), serial_steps=0)
+            for i in range(256):  # the worker's policy acted on exactly the image stored with the row
+                assert raw["seen"][i].tobytes() == robot_image_algo.digest(raw["image"][i]).tobytes()
+            assert _check_rows(raw, "ring") > 0
+
+            layout = transition_layout(pool.spec, robot_image_algo.extras(7))
+            prior = load_prior(demos, {k: layout[k] for k in prior_fields(pool.spec)})
+            assert set(prior) == set(REPLAY_FIELDS + IMAGE_FIELDS) and prior["image"].dtype == np.uint8
+            _check_rows(prior, "prior")
+            prior_obs = {o.tobytes() for o in prior["obs"]}
+            store = ReplayStore(str(tmp_path / "replay"), {k: layout[k] for k in replay_fields(pool.spec)})
+            cfg = SimpleNamespace(batch_size=64, updates_per_call=2, learning_starts=64, utd=1e9, publish_every=2,
+                                  prior_fraction=0.5)
+            from unilab_jax.device_replay import DeviceReplay
+
+            sources = {"host": (shim.get("numpy"), None, None), "disk": (shim.get("numpy"), store, None),
+                       "device": (shim.get("jax"), None, DeviceReplay(pool.buffer, replay_fields(pool.spec)))}
+            for what, (xp, st, mirror) in sources.items():
+                source = _ReplaySource(pool, xp, cfg, {"env_steps": 0, "updates": 0}, 0, st, 0.5, None, mirror,
+                                       total_steps=10**6, prior=prior)
+                out, _ = source.produce(threading.Event())
+                source.stop()
+                assert out["image"].shape == (2, 64, SIZE, SIZE, 18) and str(out["image"].dtype) == "uint8", what
+                assert set(replay_fields(pool.spec)) - {"source"} <= set(out)
+                _check_rows(out, what)
+                from_prior = sum(o.tobytes() in prior_obs for o in np.asarray(out["obs"]).reshape(128, -1))
+                assert from_prior >= 64, (what, from_prior)  # the prior half (and online rows never repeat them)
+            assert store.size > 0 and store.fields["image"][1] == np.dtype(np.uint8)
+            _check_rows(store.read(store.first_row, store.committed), "store")
+            store.close()
