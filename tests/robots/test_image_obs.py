@@ -173,3 +173,21 @@ def test_images_arrive_byte_exact_in_learner_batches(tmp_path):
             assert store.size > 0 and store.fields["image"][1] == np.dtype(np.uint8)
             _check_rows(store.read(store.first_row, store.committed), "store")
             store.close()
+
+
+def test_record_demonstrations_with_images(tmp_path, capsys):
+    """``python -m unilab_jax.robots.record --cameras=...``: a sim: server rendering the camera, demonstrations with
+    uint8 frame stacks whose episodes chain (each row's next_image is the next row's image)."""
+    out = str(tmp_path / "demos")
+    rc = record.main(["--robots=sim:franka_emika_panda", "--task=robot_peg_insertion", "--episodes=1", f"--out={out}",
+                      "--speed=50", "--cameras=front", "--image_size=32", "--frame_stack=2"])
+    assert rc == 0, capsys.readouterr().err
+    with ReplayStore(out) as store:
+        rows = store.read(store.first_row, store.committed)
+    assert rows["image"].shape[1:] == (32, 32, 6) and rows["image"].dtype == np.uint8
+    np.testing.assert_array_equal(rows["image"][1:], rows["next_image"][:-1])
+    np.testing.assert_array_equal(rows["image"][0, ..., :3], rows["image"][0, ..., 3:])  # the first frame, twice
+    assert rows["image"].std() > 5
+    for bad in ("--frame_stack=0", "--cameras=top", "--image_size=8"):
+        assert record.main(["--episodes=1", f"--out={tmp_path / 'x'}", "--cameras=front", bad]) == 2
+        assert "error:" in capsys.readouterr().err
