@@ -14,7 +14,9 @@ Flags beside the shared ones (``unilab_jax.cli``):
 * ``--observation``: what the policy sees besides proprioception: ``images`` (``IMAGE_TASK``: the front camera's
   last 3 frames at 64 x 64, uint8; ``--task_config=cameras=...,image_size=...,frame_stack=...`` change it),
   ``state`` (``STATE_TASK``: the robot's privileged object state, the state-based comparison) or ``proprio``
-  (nothing more); default: the experiment's. Images need an algorithm that reads them (the pixel learners).
+  (nothing more); default: the experiment's. Images need an algorithm that reads them (the pixel learners). With
+  images the replay ring holds at most ``--total_steps`` transitions unless ``--config replay_capacity=N`` is given
+  (a 64 px transition holds 72 KiB of images; the run prints the ring's size in shared memory).
 * Assignment: one robot per rollout worker (``--num_workers`` defaults to, and ``auto`` is, the number of robots,
   less the ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
   Periodic evaluation (``--eval_every``) needs robots the workers leave free: ``num_workers x envs_per_worker
@@ -100,6 +102,7 @@ def report_robots(addresses: list[str], task: str) -> list:
 
 def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
               default_total_steps: int, observation: str) -> tuple:
+    from unilab_jax.config import parse_overrides
     from unilab_jax.trainer import check_images
 
     try:
@@ -132,6 +135,9 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         check_images(module, bool(task_overrides.get("cameras")), algo)
     except ValueError as e:
         raise FlagError(f"--observation=images: {e}") from e
+    if task_overrides.get("cameras") and "replay_capacity" not in parse_overrides(FLAGS.config):
+        # images make a transition ~100x larger: the ring holds the run's steps at most (all of them, once)
+        config = dataclasses.replace(config, replay_capacity=min(config.replay_capacity, run.total_steps))
     if not run.task.startswith("robot_"):
         raise FlagError(f"--task={run.task}: this experiment drives robots (robot_pick_place, robot_peg_insertion)")
     if "robots" in task_overrides:
