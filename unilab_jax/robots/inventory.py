@@ -28,6 +28,7 @@ import sys
 import threading
 
 from unilab_jax.robots.client import query
+from unilab_jax.robots.gl import find_gl_backend
 from unilab_jax.robots.interface import Health, RobotDisconnected, RobotSpec
 
 # Menagerie model name -> arm of robots.scenes.ARMS.
@@ -107,12 +108,13 @@ class LocalServer:
     (``--exit_with_parent``)."""
 
     def __init__(self, arm: str, task: str, speed: float, seed: int = 0, port: int = 0,
-                 extra: tuple[str, ...] = ("--dense_reward",), cameras: tuple[str, ...] = (), image_size: int = 64):
+                 extra: tuple[str, ...] = ("--dense_reward",), cameras: tuple[str, ...] = (), image_size: int = 64,
+                 env: dict[str, str] | None = None):
         cmd = [sys.executable, "-m", "unilab_jax.robots.serve", f"--robot={arm}", f"--task={task}",
                f"--speed={speed}", f"--cameras={','.join(cameras) or 'none'}", f"--image_size={image_size}",
                "--host=127.0.0.1", f"--port={port}", f"--seed={seed}", "--exit_with_parent", *extra]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                     env={**os.environ, "OMP_NUM_THREADS": "1"})
+                                     env={**os.environ, "OMP_NUM_THREADS": "1", **(env or {})})
         lines: queue.Queue[str] = queue.Queue()
         threading.Thread(target=lambda: lines.put(self.proc.stdout.readline()), daemon=True).start()
         try:
@@ -153,12 +155,18 @@ class Inventory:
         self.addresses: list[str] = []
 
     def __enter__(self) -> Inventory:
+        env = {}
+        if self.cameras and any(e.sim for e in self.entries) and "MUJOCO_GL" not in os.environ:
+            backend, reasons = find_gl_backend()  # once for all servers (each would probe it on its own)
+            if backend is None:
+                raise InventoryError(f"sim: robots with cameras need an offscreen GL backend: {'; '.join(reasons)}")
+            env["MUJOCO_GL"] = backend
         try:
             for i, e in enumerate(self.entries):
                 if e.sim:
                     self.servers.append(LocalServer(SIM_ROBOTS[e.sim], self.task, self.speed, seed=self.seed + i,
                                                     extra=self.extra, cameras=self.cameras,
-                                                    image_size=self.image_size))
+                                                    image_size=self.image_size, env=env))
                     self.addresses.append(self.servers[-1].address)
                 else:
                     self.addresses.append(e.address)
