@@ -51,8 +51,8 @@ def check_config(cfg: Any) -> list[str]:
     return problems
 
 
-def check_algo(algo: ModuleType, spec: Any) -> None:
-    """Raises a clear error when ``algo`` cannot learn from the images ``spec`` declares."""
+def check_algo(algo: ModuleType, spec: Any, config: Any) -> None:
+    """Raises a clear error when ``algo`` (with ``config``) cannot learn from the images ``spec`` declares."""
     shape = image_shape(spec)
     if not shape:
         return
@@ -62,6 +62,7 @@ def check_algo(algo: ModuleType, spec: Any) -> None:
                          f"use sac, rlpd or sacflow")
     if len(shape) != 3:
         raise ValueError(f"task {spec.name!r}: image_shape must be (H, W, C), got {shape}")
+    pixels.flat_dim(shape, config.encoder_channels, config.encoder_strides)
 
 
 def init_params(algo: ModuleType, shape: tuple[int, ...], key: Any, obs_dim: int, critic_obs_dim: int,

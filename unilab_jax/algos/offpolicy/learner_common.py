@@ -121,7 +121,7 @@ class SACFamilyBase:
 
     def __init__(self, algo: ModuleType, config: Any, spec: Any, opt: ModuleType, xp: shim.Backend):
         self.algo, self.config, self.spec, self.xp = algo, config, spec, xp
-        image_obs.check_algo(algo, spec)
+        image_obs.check_algo(algo, spec, config)
         self.image_shape = image_obs.image_shape(spec)
         self.critic_loss, self.actor_loss = algo.critic_loss, algo.actor_loss
         self.batch_fields = BATCH_FIELDS
@@ -209,7 +209,7 @@ class TD3Base:
     ``policy_delay`` gradient steps."""
 
     def __init__(self, config: Any, spec: Any, opt: ModuleType, xp: shim.Backend):
-        image_obs.check_algo(td3, spec)
+        image_obs.check_algo(td3, spec, config)
         self.config, self.spec, self.xp = config, spec, xp
         self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
