@@ -87,6 +87,10 @@ class RobotTaskConfig:
     operator_stall_steps: int = 15  # policy steps without reward progress before a takeover (gate)
     operator_box: tuple[float, ...] = OperatorConfig.box  # safe tcp region (x, y, z) low then high (gate)
 
+    def image_shape(self) -> tuple[int, ...]:
+        """``(S, S, 3 x cameras x frame_stack)`` of the image observation; () without cameras."""
+        return (self.image_size, self.image_size, 3 * len(self.cameras) * self.frame_stack) if self.cameras else ()
+
     def operator_config(self) -> OperatorConfig:
         return OperatorConfig(mode=self.operator, segment_steps=self.operator_segment,
                               stall_steps=self.operator_stall_steps, box=tuple(self.operator_box))
@@ -150,8 +154,7 @@ class RobotTask(base.Task):
         self.n_ids = max(len(config.robots), 1)
         self.length = min(config.episode_length, spec.episode_length)
         obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids + (spec.privileged_dim if config.policy_state else 0)
-        s = config.image_size
-        image_shape = (s, s, 3 * len(config.cameras) * config.frame_stack) if config.cameras else ()
+        image_shape = config.image_shape()
         images = tuple((name, image_shape, "uint8") for name in IMAGE_FIELDS) if config.cameras else ()
         self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
                                   critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,

@@ -14,7 +14,8 @@ Flags beside the shared ones (``unilab_jax.cli``):
 * ``--observation``: what the policy sees besides proprioception: ``images`` (``IMAGE_TASK``: the front camera's
   last 3 frames at 64 x 64, uint8; ``--task_config=cameras=...,image_size=...,frame_stack=...`` change it),
   ``state`` (``STATE_TASK``: the robot's privileged object state, the state-based comparison) or ``proprio``
-  (nothing more); default: the experiment's. Images need an algorithm that reads them (the pixel learners). With
+  (nothing more); default: the experiment's. Images need an algorithm that learns from them (sac, rlpd, sacflow:
+  ``algos/offpolicy/image_obs.py``; checked with the image size before any robot starts). With
   images the replay ring holds at most ``--total_steps`` transitions unless ``--config replay_capacity=N`` is given
   (a 64 px transition holds 72 KiB of images; the run prints the ring's size in shared memory).
 * Assignment: one robot per rollout worker (``--num_workers`` defaults to, and ``auto`` is, the number of robots,
@@ -43,6 +44,7 @@ import shutil
 import signal
 import sys
 from collections.abc import Mapping
+from types import SimpleNamespace
 from typing import Any
 
 from absl import flags
@@ -102,8 +104,8 @@ def report_robots(addresses: list[str], task: str) -> list:
 
 def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
               default_total_steps: int, observation: str) -> tuple:
-    from unilab_jax.config import parse_overrides
-    from unilab_jax.trainer import check_images
+    import tasks
+    from unilab_jax.config import apply_overrides, parse_overrides
 
     try:
         entries = robot_entries()
@@ -131,11 +133,15 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     if FLAGS.serial:
         raise FlagError("--serial: robot tasks step robot servers from worker processes")
     run, module, config, task_overrides = build_run(algo, task, recipe, task_recipe, default_total_steps)
-    try:
-        check_images(module, bool(task_overrides.get("cameras")), algo)
-    except ValueError as e:
-        raise FlagError(f"--observation=images: {e}") from e
-    if task_overrides.get("cameras") and "replay_capacity" not in parse_overrides(FLAGS.config):
+    image_shape = apply_overrides(tasks.default_config(run.task), task_overrides).image_shape()
+    if image_shape:  # the algorithm learns from images of this size (a learner checks it again when it is built)
+        from unilab_jax.algos.offpolicy.image_obs import check_algo
+
+        try:
+            check_algo(module, SimpleNamespace(name=run.task, image_shape=image_shape), config)
+        except ValueError as e:
+            raise FlagError(f"--observation=images: {e}") from e
+    if image_shape and "replay_capacity" not in parse_overrides(FLAGS.config):
         # images make a transition ~100x larger: the ring holds the run's steps at most (all of them, once)
         config = dataclasses.replace(config, replay_capacity=min(config.replay_capacity, run.total_steps))
     if not run.task.startswith("robot_"):

@@ -18,7 +18,6 @@ donation; on the CPU, where an update can take minutes, nothing is donated.
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import json
 import logging
 import math
@@ -102,13 +101,6 @@ def _donated(tree: Any) -> bool:
     return any(getattr(leaf, "is_deleted", lambda: False)() for leaf in tree_leaves(tree))
 
 
-def check_images(algo_module: Any, images: bool, name: str) -> None:
-    """ValueError when a task with an image observation meets an algorithm whose ``act`` takes no ``image=``."""
-    if images and "image" not in inspect.signature(algo_module.act).parameters:
-        raise ValueError(f"the task observes images, and {name} does not read them (its act takes no image=): "
-                         "image observations need the pixel learners")
-
-
 class Trainer:
     _STOP_GRACE_S = 2.0  # after a stop, how long the loop still waits for the update in flight
     def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
@@ -126,7 +118,6 @@ class Trainer:
         probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
         self.spec = probe.spec
         probe.close()
-        check_images(algo_module, bool(getattr(self.spec, "image_shape", ())), run.algo)
         self.xp = _learner_platform(run.platform)
         self.learner = algos.make_learner(algo_module, run.platform, algo_config, self.spec)
         self.parallel = None  # the DataParallel learner of --devices > 1

@@ -11,7 +11,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import robot_image_algo
-import robot_toy_algo
 from pattern_robot import PROPRIO, frame, serving
 
 import tasks
@@ -23,7 +22,7 @@ from unilab_jax.runtime.buffers import transition_layout
 from unilab_jax.runtime.pool import WorkerPool
 from unilab_jax.runtime.prior import load_prior
 from unilab_jax.runtime.replay_store import ReplayStore
-from unilab_jax.trainer import _ReplaySource, check_images
+from unilab_jax.trainer import _ReplaySource
 
 CAMERAS, SIZE, STACK = ("wrist", "front"), 16, 3  # the task's camera order differs from the server's (front, wrist)
 IMAGES = {"cameras": CAMERAS, "image_size": SIZE, "frame_stack": STACK}
@@ -80,10 +79,6 @@ def test_camera_and_config_mismatches_are_refused():
     for bad in ({"cameras": ("top",)}, {"cameras": ("front", "front")}, {"image_size": 8}, {"frame_stack": 0}):
         with pytest.raises(ValueError):
             tasks.make("robot_peg_insertion", 1, 0, {**IMAGES, **bad})
-    with pytest.raises(ValueError, match="need the pixel learners"):
-        check_images(robot_toy_algo, True, "toy")
-    check_images(robot_image_algo, True, "toy")
-    check_images(robot_toy_algo, False, "toy")
 
 
 def test_rendered_images_through_a_robot_server(serve, gl_backend):

@@ -54,7 +54,8 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     ("rlpd_franka_peg.py", ["--demos=/nonexistent"], "no replay store there"),
     ("rlpd_franka_peg.py", ["--eval_every=100"], "evaluation needs 1 more"),
     ("rlpd_franka_peg.py", ["--config", "prior_fraction=1.0"], "prior_fraction must be in [0, 1)"),
-    ("rlpd_franka_peg.py", ["--observation=images"], "image observations need the pixel learners"),
+    ("rlpd_franka_peg.py", ["--observation=images", "--task_config=image_size=16", "--config",
+                            "encoder_strides=(2, 2, 2, 2)"], "is too small for 4 3x3 convolutions"),
 ])
 def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message):
     out = _script(script, *args, f"--logdir={tmp_path / 'x'}", timeout=120)
