@@ -5,9 +5,11 @@
         --demos=demos/peg --eval_every=1000 --eval_envs=1 --num_workers=1 --config utd=20
 
 Without ``--demos`` the scripted expert records ``--num_demos`` (20) episodes on the run's robots first
-(``LOGDIR/demos``). Each minibatch is half demonstrations, half online data (symmetric sampling), the
-critics a LayerNorm ensemble of 10 with a subset-of-2 min target. The policy sees proprioception and the
-robot's privileged object state (``policy_state``: the state-based stand-in for the cameras). Reward: 1 on
+(``LOGDIR/demos``, with the run's images). Each minibatch is half demonstrations, half online data (symmetric
+sampling), the critics a LayerNorm ensemble of 10 with a subset-of-2 min target. The policy sees proprioception
+and the front camera's last 3 frames (``--observation=images``, the default: uint8 frame stacks rendered by the
+robots, a DrQ encoder trained by the critic; ``--observation=state``: the robot's privileged object state instead,
+the state-based comparison). Reward: 1 on
 success only (the episode then ends), as a physical robot's success detector gives it (``--dense_reward``
 adds the shaped term). Flags and recipe: ``unilab_jax.robot_cli``.
 """
@@ -16,4 +18,4 @@ from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("rlpd", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         observation="state", dense_reward=False)
+                         observation="images", dense_reward=False)

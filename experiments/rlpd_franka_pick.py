@@ -3,12 +3,12 @@
     python experiments/rlpd_franka_pick.py --speed=20 --total_steps=2000 --logdir=runs/rlpd_pick
 
 Everything as in ``rlpd_franka_peg.py`` (demonstrations recorded on first use or ``--demos=DIR``, symmetric
-sampling, the critic ensemble, object state in the policy's observation, success-only reward) on the
-pick-and-place task.
+sampling, the critic ensemble, images and proprioception in the policy's observation or ``--observation=state``,
+success-only reward) on the pick-and-place task.
 """
 
 from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("rlpd", "robot_pick_place", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         observation="state", dense_reward=False)
+                         observation="images", dense_reward=False)

@@ -2,12 +2,13 @@
 
     python experiments/sac_franka_peg.py --speed=20 --total_steps=2000 --logdir=runs/sac_peg
 
-Same networks, observations (``policy_state``), reward (success only), batch and update-to-data ratio as
-``rlpd_franka_peg.py``; SAC's twin critics and no demonstrations. Flags and recipe: ``unilab_jax.robot_cli``.
+Same networks, observations (``--observation=images`` by default, or ``state``), reward (success only), batch
+and update-to-data ratio as ``rlpd_franka_peg.py``; SAC's twin critics and no demonstrations. Flags and recipe:
+``unilab_jax.robot_cli``.
 """
 
 from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("sac", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         observation="state", dense_reward=False)
+                         observation="images", dense_reward=False)

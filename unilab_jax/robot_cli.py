@@ -12,12 +12,13 @@ Flags beside the shared ones (``unilab_jax.cli``):
   experiment's), ``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and
   health first (and must render the task's cameras at its ``image_size``).
 * ``--observation``: what the policy sees besides proprioception: ``images`` (``IMAGE_TASK``: the front camera's
-  last 3 frames at 64 x 64, uint8; ``--task_config=cameras=...,image_size=...,frame_stack=...`` change it),
+  last 3 frames at 32 x 32, uint8, and ``IMAGE_RECIPE``'s small encoder: both sized for a 2-core CPU;
+  ``--task_config=cameras=...,image_size=...,frame_stack=...`` and ``--config encoder_channels=...`` change them),
   ``state`` (``STATE_TASK``: the robot's privileged object state, the state-based comparison) or ``proprio``
   (nothing more); default: the experiment's. Images need an algorithm that learns from them (sac, rlpd, sacflow:
   ``algos/offpolicy/image_obs.py``; checked with the image size before any robot starts). With
   images the replay ring holds at most ``--total_steps`` transitions unless ``--config replay_capacity=N`` is given
-  (a 64 px transition holds 72 KiB of images; the run prints the ring's size in shared memory).
+  (a 64 px transition with 3 frames holds 72 KiB of images; the run prints the ring's size in shared memory).
 * Assignment: one robot per rollout worker (``--num_workers`` defaults to, and ``auto`` is, the number of robots,
   less the ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
   Periodic evaluation (``--eval_every``) needs robots the workers leave free: ``num_workers x envs_per_worker
@@ -57,7 +58,13 @@ MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), 
                        "updates_per_call": 16, "publish_every": 16, "utd": 4.0, "learning_starts": 300,
                        "replay_capacity": 200_000, "gamma": 0.95}
 STATE_TASK = {"policy_state": True}
-IMAGE_TASK = {"cameras": ("front",), "image_size": 64, "frame_stack": 3}
+IMAGE_TASK = {"cameras": ("front",), "image_size": 32, "frame_stack": 3}
+# With images, on top of the algorithm's recipe: an encoder of two strided 8-channel convolutions and utd 0.5, so
+# that the plain commands finish on a 2-core CPU (a gradient step there: 60-150 ms; DrQ's four 32-channel
+# convolutions at 64 px: ~15 s; rlpd_franka_peg.py --total_steps=2000 at utd 1: 236 s wall). On a GPU:
+# --task_config=image_size=64 --config encoder_channels='(32, 32, 32, 32)' --config encoder_strides='(2, 1, 1, 1)'
+# --config feature_dim=50 and a higher utd (the README's commands).
+IMAGE_RECIPE = {"encoder_channels": (8, 8), "encoder_strides": (2, 2), "feature_dim": 32, "utd": 0.5}
 OBSERVATIONS = {"images": IMAGE_TASK, "state": STATE_TASK, "proprio": {}}
 EVAL_CONNECT_S = 10.0  # how long an evaluation waits for robots before going on with those that answer
 
@@ -111,7 +118,9 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         entries = robot_entries()
     except ValueError as e:
         raise FlagError(str(e)) from e
+    images = (FLAGS.observation or observation) == "images"
     task_recipe = {**OBSERVATIONS[FLAGS.observation or observation], **task_recipe}
+    recipe = {**recipe, **(IMAGE_RECIPE if images else {})}
     n = len(entries)
     periodic = FLAGS.eval_every > 0
     if not FLAGS["eval_envs"].present:

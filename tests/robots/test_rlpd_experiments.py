@@ -21,12 +21,17 @@ def _script(name: str, *args: str, timeout: float) -> subprocess.CompletedProces
 
 
 def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
+    """The plain command: images (the front camera's frames rendered by the sim: server) + proprioception, 20
+    demonstrations recorded with images, RLPD with the image encoder."""
     logdir = tmp_path / "run"
-    out = _script("rlpd_franka_peg.py", "--speed=20", "--total_steps=2000", f"--logdir={logdir}", timeout=400)
+    out = _script("rlpd_franka_peg.py", "--speed=20", "--total_steps=2000", f"--logdir={logdir}", timeout=500)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "demonstrations: 20 episodes (" in out.stdout
+    assert "image observation 32x32x9 uint8 (front x 3 frames)" in out.stdout
     with ReplayStore(str(logdir / "demos")) as store:
         rows = store.read(store.first_row, store.committed)
+    assert rows["image"].shape[1:] == rows["next_image"].shape[1:] == (32, 32, 9)
+    assert rows["image"].dtype == np.uint8 and rows["image"].std() > 5  # rendered scenes
     assert len(set(rows["episode"].tolist())) == 20
     for e in range(20):  # the label: the episode ended by success (termination), not by its time limit
         ep = rows["episode"] == e
@@ -64,7 +69,8 @@ def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message
 
 
 def test_rlpd_improves_on_its_first_evaluation(tmp_path):
-    """The cheapest learning configuration: state-based peg insertion with the dense reward, three robots at
+    """The cheapest learning configuration: state-based peg insertion (``--observation=state``) with the dense
+    reward, three robots at
     speed 50 (one trains, two evaluate every 300 steps while it does), 900 env steps, utd 8.
 
     Measured on the 2-core VM (seeds 0-3, eval return at 300 / 600 / 900 steps): 0.68 / 5.87 / 10.97,
@@ -76,7 +82,8 @@ def test_rlpd_improves_on_its_first_evaluation(tmp_path):
     """
     logdir = tmp_path / "run"
     robots = ",".join(["sim:franka_emika_panda"] * 3)
-    out = _script("rlpd_franka_peg.py", f"--robots={robots}", "--num_workers=1", "--eval_envs=2", "--eval_every=300",
+    out = _script("rlpd_franka_peg.py", "--observation=state", f"--robots={robots}", "--num_workers=1", "--eval_envs=2",
+                  "--eval_every=300",
                   "--speed=50", "--total_steps=900", "--dense_reward", "--config", "utd=8", "--config",
                   "init_alpha=0.05", "--replay_on_device=on", f"--logdir={logdir}", timeout=400)
     assert out.returncode == 0, out.stderr[-3000:]
