@@ -11,6 +11,7 @@ def replay_fields(spec: object) -> tuple[str, ...]:
     tasks' ``source``), which learners that do not read them ignore."""
     return REPLAY_FIELDS + tuple(name for name, _, _ in getattr(spec, "transition_fields", ()))
 
+
 # A task with an image observation (``spec.image_shape``) adds these transition fields: uint8 ``[..., H, W, C]``,
 # the images of ``obs`` and of ``next_obs`` (before auto-reset).
 IMAGE_FIELDS = ("image", "next_image")

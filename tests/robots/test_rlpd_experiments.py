@@ -59,7 +59,7 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     ("rlpd_franka_peg.py", ["--demos=/nonexistent"], "no replay store there"),
     ("rlpd_franka_peg.py", ["--eval_every=100"], "evaluation needs 1 more"),
     ("rlpd_franka_peg.py", ["--config", "prior_fraction=1.0"], "prior_fraction must be in [0, 1)"),
-    ("rlpd_franka_peg.py", ["--observation=images", "--task_config=image_size=16", "--config",
+    ("rlpd_franka_peg.py", ["--task_config=image_size=16", "--config", "encoder_channels=(8, 8, 8, 8)", "--config",
                             "encoder_strides=(2, 2, 2, 2)"], "is too small for 4 3x3 convolutions"),
 ])
 def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message):
