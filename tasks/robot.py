@@ -4,7 +4,7 @@ With ``robots`` (an inventory of ``tcp://HOST:PORT`` robot servers, ``unilab_jax
 of the task's ``num_envs`` environments is one robot claimed from the inventory: the first free ones in
 order, so workers of one run given the same inventory share it out among themselves (a claim is
 exclusive; ``connect_timeout_s`` bounds the wait for free robots). Without ``robots`` the environments
-are in-process simulated robots (``arm``, unpaced, no cameras): for tests and the task contract.
+are in-process simulated robots (``arm``, unpaced, rendering ``cameras`` if any): for tests and the task contract.
 
 Observation (state-based): the robot's ``proprio`` [13], (with ``policy_state``) its ``privileged`` state,
 a one-hot of its kind (``KINDS``) and a one-hot of its place in the inventory (the robot's identity; one
