@@ -6,24 +6,28 @@ table, writes JSON with machine info.
     python bench/image_obs.py --envs 1 8 --algos sac rlpd --batch 256 --updates 8 \\
         --out bench/results/h100/image_obs_h100.json                                     # on the GPU
 
-``act``: median over ``--repeats`` calls of ``sac.act(weights, obs [M, 32], noise, image=uint8 [M, H, W, C])`` on
-numpy weights (what a worker runs; the encoder's convolutions are ``xp.conv2d``'s im2col + one BLAS
-contraction each). ``update``: the first call (compile) and the median steady call of ``learner.update`` on a
-random ``[U, B]`` batch with images, in milliseconds per gradient step. The encoder is the configs' default
-(``--channels``, ``--strides``, ``--feature_dim``).
+``act``: median over ``max(--repeats, 20)`` calls, with one BLAS thread (what the WorkerPool gives a worker),
+of ``sac.act(weights, obs [M, 32], noise, image=uint8 [M, H, W, C])`` on numpy weights (the encoder's
+convolutions are ``xp.conv2d``'s im2col + one BLAS contraction each). ``update``: the first call (compile) and the
+median steady call of ``learner.update`` on a random ``[U, B]`` batch with images, in milliseconds per gradient
+step. The encoder is the configs' default (``--channels``, ``--strides``, ``--feature_dim``).
 """
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
-import json
 import os
-import sys
-import time
-import types
 
-import numpy as np
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one BLAS thread, as in a worker
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import types  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if REPO not in sys.path:
