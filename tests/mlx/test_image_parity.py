@@ -17,7 +17,7 @@ import pytest
 
 mx = pytest.importorskip("mlx.core")
 
-from mlx_helpers import leaf_errors  # noqa: E402
+from mlx_helpers import assert_runs_without_jax, leaf_errors  # noqa: E402
 
 from tasks.base import TaskSpec  # noqa: E402
 from unilab_jax.algos.offpolicy import learner_mlx as mlx_off  # noqa: E402
@@ -107,3 +107,35 @@ def test_one_image_update_matches_jax(name):
     other, _ = ml.update(ms, {k: mx.array(v) for k, v in batch.items()}, noise=shifted)
     control = leaf_errors(encoder(other), encoder(ms2))
     assert max(control.values()) > 10 * RTOL, control
+    assert ml.trace_count == 1  # one compiled step for both updates
+
+
+NO_JAX = """
+import sys
+sys.modules['jax'] = None
+sys.modules['optax'] = None
+import mlx.core as mx
+import numpy as np
+from types import SimpleNamespace
+from unilab_jax import nets
+from unilab_jax.algos.offpolicy import sac
+spec = SimpleNamespace(name='t', obs_dim=3, critic_obs_dim=4, action_dim=2, image_shape=(10, 10, 3))
+rng = np.random.default_rng(0)
+U, B = 2, 4
+f = lambda *s: rng.normal(size=s).astype(np.float32)
+img = lambda: rng.integers(0, 256, (U, B, 10, 10, 3), dtype=np.uint8)
+batch = dict(obs=f(U, B, 3), critic_obs=f(U, B, 4), next_obs=f(U, B, 3), next_critic_obs=f(U, B, 4),
+             action=np.tanh(f(U, B, 2)), reward=f(U, B), terminated=np.zeros((U, B), bool),
+             truncated=np.zeros((U, B), bool), image=img(), next_image=img())
+config = sac.Config(actor_hidden=(8,), critic_hidden=(8,), batch_size=B, updates_per_call=U, encoder_channels=(4,),
+                    encoder_strides=(2,), feature_dim=3, image_pad=1)
+learner = sac.make_learner('mlx', config, spec)
+state, metrics = learner.update(learner.init(mx.random.key(0)), batch)
+assert int(state.steps) == U and all(np.isfinite(float(v)) for v in metrics.values()), metrics
+action, _ = sac.act(nets.to_numpy(learner.weights(state)), f(B, 3), f(B, 2), image=batch['image'][0])
+assert action.shape == (B, 2)
+"""
+
+
+def test_image_learner_and_act_run_without_jax():
+    assert_runs_without_jax(NO_JAX)
