@@ -19,7 +19,7 @@ jnp = jax.numpy
 
 from tasks.base import TaskSpec  # noqa: E402
 from unilab_jax import algos, nets  # noqa: E402
-from unilab_jax.algos.offpolicy import image_obs, sac  # noqa: E402
+from unilab_jax.algos.offpolicy import image_obs, sac, sacflow  # noqa: E402
 from unilab_jax.algos.offpolicy import learner_jax as offpolicy_jax  # noqa: E402
 from unilab_jax.algos.offpolicy.sac import Norms  # noqa: E402
 from unilab_jax.core import normalizer, pixels  # noqa: E402
@@ -153,6 +153,25 @@ def test_one_compile_target_encoder_weights_and_numpy_act():
         sac.act(w_np, obs, noise)
     with pytest.raises(ValueError, match="no encoder"):
         sac.act({"actor": w_np["actor"], "obs_norm": w_np["obs_norm"]}, obs, noise, image=img)
+
+
+def test_sacflow_act_reads_images():
+    """SAC Flow's worker-side chain on obs ++ features: numpy equals jax on the same weights; the image matters."""
+    config = sacflow.Config(actor_hidden=(16,), critic_hidden=(16,), flow_steps=3, encoder_channels=(8,),
+                            encoder_strides=(2,), feature_dim=5)
+    learner = offpolicy_jax.SACFamilyLearner(sacflow, config, SPEC)
+    params = nets.to_numpy(learner.init_params(np.array([3, 4])))
+    stats = normalizer.RunningStats(np.full(OBS, 0.5, np.float32), np.full(OBS, 2.0, np.float32), np.float32(10.0))
+    weights = image_obs.add_encoder(sac.policy_weights(params["actor"], stats), params["critic"], config)
+    rng = np.random.default_rng(3)
+    img, _ = _images(rng, 6)
+    obs, noise = rng.normal(size=(6, OBS)).astype(np.float32), rng.normal(size=(6, sacflow.noise_dim(A)))
+    noise = noise.astype(np.float32)
+    got, _ = sacflow.act(weights, obs, noise, False, image=img)
+    on_jax, _ = sacflow.act(nets.convert(weights, offpolicy_jax.XP), jnp.asarray(obs), jnp.asarray(noise), False,
+                            image=img)
+    np.testing.assert_allclose(np.asarray(on_jax), got, atol=1e-5)
+    assert got.shape == (6, A) and not np.allclose(sacflow.act(weights, obs, noise, False, image=img[::-1])[0], got)
 
 
 def test_learns_an_image_bandit():
