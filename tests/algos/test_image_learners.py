@@ -19,12 +19,12 @@ jnp = jax.numpy
 
 from tasks.base import TaskSpec  # noqa: E402
 from unilab_jax import algos, nets  # noqa: E402
-from unilab_jax.algos.offpolicy import image_obs, sac  # noqa: E402
+from unilab_jax.algos.offpolicy import image_obs, sac, sacflow  # noqa: E402
 from unilab_jax.algos.offpolicy import learner_jax as offpolicy_jax  # noqa: E402
 from unilab_jax.algos.offpolicy.sac import Norms  # noqa: E402
 from unilab_jax.core import normalizer, pixels  # noqa: E402
 
-H, OBS, A, B, U = 16, 3, 1, 64, 10
+H, OBS, A, B, U = 16, 3, 1, 64, 4
 
 
 def image_spec(base: TaskSpec, shape: tuple[int, int, int]) -> types.SimpleNamespace:
@@ -95,11 +95,12 @@ def test_critic_gradient_trains_the_encoder_and_the_actor_gradient_does_not():
     assert params["actor"][0]["w"].shape[0] == OBS + CONFIG.feature_dim  # obs ++ features
     assert params["critic"]["net"][0]["w"].shape[1] == OBS + CONFIG.feature_dim + A
     rng = np.random.default_rng(0)
-    mb = {k: jnp.asarray(v[0]) for k, v in _batch(rng).items()}
-    mb = {**mb, "reward": mb["reward"], "terminated": jnp.zeros(B), "truncated": jnp.zeros(B)}
+    n = 16  # rows of the minibatch
+    mb = {k: jnp.asarray(v[0, :n]) for k, v in _batch(rng).items()}
+    mb = {**mb, "terminated": jnp.zeros(n), "truncated": jnp.zeros(n)}  # bootstrapped: the target encoder is used
     stats = normalizer.stats_init(OBS, offpolicy_jax.XP)
     norms = Norms(stats, stats, jnp.ones(()))
-    eps = jnp.asarray(rng.normal(size=(B, A)).astype(np.float32))
+    eps = jnp.asarray(rng.normal(size=(n, A)).astype(np.float32))
     log_alpha = jnp.asarray(np.log(0.2), jnp.float32)
     critic_loss, actor_loss = image_obs.critic_loss(sac), image_obs.actor_loss(sac)
 
@@ -154,13 +155,32 @@ def test_one_compile_target_encoder_weights_and_numpy_act():
         sac.act({"actor": w_np["actor"], "obs_norm": w_np["obs_norm"]}, obs, noise, image=img)
 
 
+def test_sacflow_act_reads_images():
+    """SAC Flow's worker-side chain on obs ++ features: numpy equals jax on the same weights; the image matters."""
+    config = sacflow.Config(actor_hidden=(16,), critic_hidden=(16,), flow_steps=3, encoder_channels=(8,),
+                            encoder_strides=(2,), feature_dim=5)
+    learner = offpolicy_jax.SACFamilyLearner(sacflow, config, SPEC)
+    params = nets.to_numpy(learner.init_params(np.array([3, 4])))
+    stats = normalizer.RunningStats(np.full(OBS, 0.5, np.float32), np.full(OBS, 2.0, np.float32), np.float32(10.0))
+    weights = image_obs.add_encoder(sac.policy_weights(params["actor"], stats), params["critic"], config)
+    rng = np.random.default_rng(3)
+    img, _ = _images(rng, 6)
+    obs, noise = rng.normal(size=(6, OBS)).astype(np.float32), rng.normal(size=(6, sacflow.noise_dim(A)))
+    noise = noise.astype(np.float32)
+    got, _ = sacflow.act(weights, obs, noise, False, image=img)
+    on_jax, _ = sacflow.act(nets.convert(weights, offpolicy_jax.XP), jnp.asarray(obs), jnp.asarray(noise), False,
+                            image=img)
+    np.testing.assert_allclose(np.asarray(on_jax), got, atol=1e-5)
+    assert got.shape == (6, A) and not np.allclose(sacflow.act(weights, obs, noise, False, image=img[::-1])[0], got)
+
+
 def test_learns_an_image_bandit():
     """The best action (+-0.5) is a function of the image only (the square's side): the greedy actor, which sees
     the critic-trained encoder's features detached, must find it. Action error E(a - best)^2 after 600 gradient
-    steps, 10 seeds measured: 0.006 to 0.076 (chance, a = 0: 0.25)."""
+    steps (150 calls of U = 4), 10 seeds measured: 0.004 to 0.064 (this seed: 0.015; chance, a = 0: 0.25)."""
     learner = _learner()
-    rng = np.random.default_rng(5)
-    test_img, test_best = _images(np.random.default_rng(1005), 256)
+    rng = np.random.default_rng(1)
+    test_img, test_best = _images(np.random.default_rng(1001), 256)
     test_obs = np.random.default_rng(7).normal(size=(256, OBS)).astype(np.float32)
 
     def error(state) -> float:
@@ -168,9 +188,9 @@ def test_learns_an_image_bandit():
                             image=test_img)
         return float(np.mean((action[:, 0] - test_best) ** 2))
 
-    state = learner.init(jax.random.PRNGKey(5))
+    state = learner.init(jax.random.PRNGKey(1))
     start = error(state)
-    for _ in range(60):
+    for _ in range(150):
         state, metrics = learner.update(state, _batch(rng))
     final = error(state)
     assert start > 0.2 and final < 0.15, f"action error {start:.3f} -> {final:.3f}; last metrics {metrics}"

@@ -13,14 +13,8 @@ from unilab_jax.core import pixels
 BACKENDS = ["numpy", "jax", "mlx"]
 
 
-def _xp(name):
-    pytest.importorskip("mlx.core" if name == "mlx" else name)
-    return shim.get(name)
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_conv2d_hand_computed(backend):
-    xp = _xp(backend)
+    xp = backend  # each shim backend in turn (tests/core/conftest.py)
     x = np.arange(25, dtype=np.float32).reshape(1, 5, 5, 1)  # x[r, c] = 5 r + c
     w = np.zeros((3, 3, 2, 2), np.float32)
     w[:, :, 0, 0] = 1.0  # output 0: the window's sum = 9 x its centre (x is linear)
@@ -63,9 +57,8 @@ def test_conv2d_backends_agree_on_random_inputs_and_gradients():
     np.testing.assert_allclose(np.asarray(grads_j[1]), np.einsum("bhwcij,bhwo->ijco", windows, g), atol=1e-4)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_random_shift_hand_computed(backend):
-    xp = _xp(backend)
+    xp = backend
     img = np.array([[1, 2, 3], [4, 5, 6], [7, 8, 9]], np.uint8)[None, :, :, None]
     img = np.concatenate([img, img + 100], axis=0)  # two images
     shifts = np.array([[0, 2], [1, 1]], np.int32)  # image 0: one row up, one column right; image 1: none
@@ -86,7 +79,7 @@ def test_random_shift_equals_edge_pad_and_crop():
     padded = np.pad(img, ((0, 0), (4, 4), (4, 4), (0, 0)), mode="edge")
     want = np.stack([padded[b, s[0]:s[0] + 10, s[1]:s[1] + 7] for b, s in enumerate(shifts)])
     for name in BACKENDS:
-        xp = _xp(name)
+        xp = shim.get(name)
         np.testing.assert_array_equal(xp.asnumpy(pixels.random_shift(xp.asarray(img), xp.asarray(shifts), 4)), want)
 
 
@@ -119,7 +112,7 @@ def test_encoder_flatten_order_by_hand():
     img = np.zeros((1, 5, 6, 1), np.uint8)
     img[0, 2, 3, 0] = 255  # the centre of output position (1, 2)
     for name in BACKENDS:
-        xp = _xp(name)
+        xp = shim.get(name)
         feat = xp.asnumpy(pixels.encode(nets.convert(params, xp), xp.asarray(img), (1,)))
         # channel 1 there: relu(2 x 0.5 + 0.5) = 1.5 (elsewhere relu(-0.5) = 0); the linear output [1.5, 0]
         # -> LayerNorm over 2 entries -> [1, -1] -> tanh (another flatten order reads a 0: [0, 0])
