@@ -4,6 +4,9 @@ device mirror)."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 import time
 from types import SimpleNamespace
@@ -24,6 +27,7 @@ from unilab_jax.runtime.prior import load_prior
 from unilab_jax.runtime.replay_store import ReplayStore
 from unilab_jax.trainer import _ReplaySource
 
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CAMERAS, SIZE, STACK = ("wrist", "front"), 16, 3  # the task's camera order differs from the server's (front, wrist)
 IMAGES = {"cameras": CAMERAS, "image_size": SIZE, "frame_stack": STACK}
 PER_FRAME = 3 * len(CAMERAS)
@@ -186,3 +190,19 @@ def test_record_demonstrations_with_images(tmp_path, capsys):
     for bad in ("--frame_stack=0", "--cameras=top", "--image_size=8"):
         assert record.main(["--episodes=1", f"--out={tmp_path / 'x'}", "--cameras=front", bad]) == 2
         assert "error:" in capsys.readouterr().err
+
+
+def test_experiment_refuses_a_server_without_the_cameras(tmp_path, serve):
+    """rlpd_franka_peg.py (images by default) on a running server that renders no camera: exit 2 before any
+    demonstration or worker, naming the server flags it needs."""
+    import os
+    import subprocess
+    import sys
+
+    server = serve("--robot=franka", "--task=peg_insertion", "--speed=20", "--reset_s=0", "--cameras=none")
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "rlpd_franka_peg.py"),
+                          f"--robots={server.address}", f"--logdir={tmp_path / 'run'}"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert "serve it with --cameras=front --image_size=32" in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "run" / "demos").exists()
