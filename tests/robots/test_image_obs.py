@@ -195,10 +195,6 @@ def test_record_demonstrations_with_images(tmp_path, capsys):
 def test_experiment_refuses_a_server_without_the_cameras(tmp_path, serve):
     """rlpd_franka_peg.py (images by default) on a running server that renders no camera: exit 2 before any
     demonstration or worker, naming the server flags it needs."""
-    import os
-    import subprocess
-    import sys
-
     server = serve("--robot=franka", "--task=peg_insertion", "--speed=20", "--reset_s=0", "--cameras=none")
     out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "rlpd_franka_peg.py"),
                           f"--robots={server.address}", f"--logdir={tmp_path / 'run'}"], cwd=ROOT,
