@@ -272,10 +272,13 @@ class RobotTask(base.Task):
         return np.stack([np.concatenate([self._last[i][c] for c in self.config.cameras], axis=-1) for i in envs])
 
     def _restack(self, envs) -> None:
-        """Starts the frame stacks of ``envs`` (new episodes): the current frame repeated."""
+        """Starts the frame stacks of ``envs`` (new episodes): the current frame repeated. Into a new array: the
+        stacks handed out (``images()``, a step's ``image`` / ``next_image``) never change afterwards."""
         envs = list(envs)
         if self.config.cameras and envs:
-            self._stack[envs] = np.tile(self._frames(envs), (1, 1, 1, self.config.frame_stack))
+            stack = self._stack.copy()
+            stack[envs] = np.tile(self._frames(envs), (1, 1, 1, self.config.frame_stack))
+            self._stack = stack
 
     def images(self) -> np.ndarray:
         if not self.config.cameras:
@@ -345,12 +348,12 @@ class RobotTask(base.Task):
         next_obs, next_critic = self._observe_all()
         done = np.flatnonzero(term | trunc)
         obs, critic = next_obs, next_critic
-        if self.config.cameras:  # shift each stack by one frame (new arrays: images() handed out stay valid)
+        if self.config.cameras:  # shift each stack by one frame (into a new array, as _restack)
             per_frame = 3 * len(self.config.cameras)
             extras["image"] = self._stack
             extras["next_image"] = np.concatenate([self._stack[..., per_frame:], self._frames(range(self.num_envs))],
                                                   axis=-1)
-            self._stack = extras["next_image"].copy() if done.size else extras["next_image"]
+            self._stack = extras["next_image"]
         if done.size:
             fresh = self._map(lambda i, d: self.robots[i].reset() if d else None, list(term | trunc))
             for i in done:  # the step happened: a robot lost while resetting starts its next episode on return

@@ -67,6 +67,9 @@ def test_frame_stacks_by_hand():
             out = task.step(ZERO)
             f.append(frames_of(out.next_obs[0]))
             np.testing.assert_array_equal(out.extras["next_image"][0], stack(5, 5, 6))
+            handed, kept = out.extras["next_image"], out.extras["next_image"].copy()
+            task.reset()  # restarts every stack, into new arrays: what was handed out stays as it was
+            np.testing.assert_array_equal(handed, kept)
             # evaluation / play act on the task's current images (the algorithm refuses to act without them)
             _, stats = run_episodes(task, deterministic_policy(robot_image_algo, {}, task), max_steps=3)
             assert stats["episode_length"] == 3
