@@ -60,8 +60,8 @@ MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), 
 STATE_TASK = {"policy_state": True}
 IMAGE_TASK = {"cameras": ("front",), "image_size": 32, "frame_stack": 3}
 # With images, on top of the algorithm's recipe: an encoder of two strided 8-channel convolutions and utd 0.5, so
-# that the plain commands finish on a 2-core CPU (a gradient step there: 60-150 ms; DrQ's four 32-channel
-# convolutions at 64 px: ~15 s; rlpd_franka_peg.py --total_steps=2000: 150 s wall, 236 s at utd 1). On a GPU:
+# that the plain commands finish on a 2-core CPU (RLPD's gradient step at batch 128 there: 13 ms; DrQ's four
+# 32-channel convolutions at 64 px: 654 ms; rlpd_franka_peg.py --total_steps=2000: 135-150 s wall). On a GPU:
 # --task_config=image_size=64 --config encoder_channels='(32, 32, 32, 32)' --config encoder_strides='(2, 1, 1, 1)'
 # --config feature_dim=50 and a higher utd (the README's commands).
 IMAGE_RECIPE = {"encoder_channels": (8, 8), "encoder_strides": (2, 2), "feature_dim": 32, "utd": 0.5}
