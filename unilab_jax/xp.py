@@ -20,7 +20,8 @@ its array library and adds the few things the standard lacks, with the same mean
 * tree utilities ``tree_map`` / ``tree_leaves`` over dicts, lists, tuples and NamedTuples;
 * ``scan(f, init, xs, reverse=False)`` over the leading axis;
 * a few numerics outside the standard: ``logsumexp``, ``softmax``, ``log_softmax``, ``softplus``,
-  ``relu``, ``elu``, ``one_hot``;
+  ``relu``, ``elu``, ``one_hot``, and ``conv2d(x [B, H, W, Cin], w [kh, kw, Cin, Cout], stride)`` (VALID
+  padding, channels last; differentiable on jax and mlx);
 * conversion: ``asnumpy(x)`` and ``from_numpy(x)``;
 * jax only: ``with xp.compute_dtype("bfloat16"):`` makes ``xp.matmul`` of float32 arrays traced in that
   block multiply in bfloat16 with float32 accumulation and float32 results (forward and backward), so
@@ -247,6 +248,14 @@ class NumpyBackend(Backend):
     def asarray(self, x: Any, dtype: Any = None, copy: bool | None = None) -> np.ndarray:
         return np.asarray(x, dtype=dtype) if copy is None else np.array(x, dtype=dtype, copy=copy)
 
+    def conv2d(self, x: np.ndarray, w: np.ndarray, stride: int = 1) -> np.ndarray:
+        """2-D cross-correlation, VALID padding, channels last: ``x [B, H, W, Cin]``, ``w [kh, kw, Cin, Cout]``
+        -> ``[B, (H - kh) // stride + 1, (W - kw) // stride + 1, Cout]``."""
+        # im2col: a strided view of every kh x kw window [B, H', W', Cin, kh, kw], one BLAS contraction.
+        kh, kw = int(w.shape[0]), int(w.shape[1])
+        windows = np.lib.stride_tricks.sliding_window_view(x, (kh, kw), axis=(1, 2))[:, ::stride, ::stride]
+        return np.tensordot(windows, w, axes=((4, 5, 3), (0, 1, 2)))
+
 
 # ---------------------------------------------------------------------------------------------
 # jax (loaded on demand)
@@ -381,6 +390,10 @@ class JaxBackend(Backend):
 
     def stop_gradient(self, x: Any) -> Any:
         return self._jax.lax.stop_gradient(x)
+
+    def conv2d(self, x: Any, w: Any, stride: int = 1) -> Any:
+        return self._jax.lax.conv_general_dilated(x, w, (stride, stride), "VALID",
+                                                  dimension_numbers=("NHWC", "HWIO", "NHWC"))
 
     def materialize(self, tree: Any) -> Any:
         return self._jax.lax.optimization_barrier(tree)

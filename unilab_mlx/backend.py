@@ -74,6 +74,10 @@ class MlxBackend(_xp.Backend):
     def stop_gradient(self, x: mx.array) -> mx.array:
         return mx.stop_gradient(x)
 
+    def conv2d(self, x: mx.array, w: mx.array, stride: int = 1) -> mx.array:
+        # The shim's weights are [kh, kw, Cin, Cout] (jax's HWIO); mx.conv2d takes [Cout, kh, kw, Cin].
+        return mx.conv2d(x, mx.transpose(w, (3, 0, 1, 2)), stride=stride)
+
     def logsumexp(self, x: mx.array, axis: int = -1, keepdims: bool = False) -> mx.array:
         return mx.logsumexp(x, axis=axis, keepdims=keepdims)
 

@@ -9,6 +9,7 @@ the published weights and the metric averaging.
 
 from __future__ import annotations
 
+import functools
 import math
 from types import ModuleType
 from typing import Any
@@ -17,7 +18,7 @@ import numpy as np
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
-from unilab_jax.algos.offpolicy import sac, td3
+from unilab_jax.algos.offpolicy import image_obs, sac, td3
 from unilab_jax.algos.offpolicy.sac import Norms, SACState
 from unilab_jax.algos.offpolicy.td3 import TD3State
 from unilab_jax.core import normalizer
@@ -65,9 +66,12 @@ def init_on_numpy(init_params: Any, key_words: np.ndarray, xp: shim.Backend, *ar
     return {k: nets.convert(v, xp) for k, v in params.items()}  # separate buffers per entry
 
 
-def prepare_batch(batch: dict) -> dict:
-    """The fields the update reads, rewards/flags as float32 (bool flags accepted)."""
-    out = {k: batch[k] for k in BATCH_FIELDS}
+def prepare_batch(batch: dict, fields: tuple[str, ...] = BATCH_FIELDS) -> dict:
+    """The ``fields`` the update reads, rewards/flags as float32 (bool flags accepted; images stay uint8)."""
+    missing = [k for k in fields if k not in batch]
+    if missing:
+        raise ValueError(f"the replay batch lacks {missing} (it has {sorted(batch)})")
+    out = {k: batch[k] for k in fields}
     xp = shim.namespace(out["reward"])
     for k in ("reward", "terminated", "truncated"):
         out[k] = xp.astype(out[k], xp.float32)
@@ -108,10 +112,22 @@ def td3_metrics(stacked: dict) -> dict:
 class SACFamilyBase:
     """The platform-independent half of the SAC-family learners (``algo`` is the algorithm module,
     which provides ``init_params``, ``critic_loss``, ``actor_loss``, ``temperature_loss`` and optionally
-    ``project_params`` and ``reward_scale``)."""
+    ``project_params`` and ``reward_scale``).
+
+    A task with images (``spec.image_shape``; ``image_obs``): the learners use ``self.critic_loss`` /
+    ``self.actor_loss`` (the algorithm's, wrapped to encode the images), read ``self.batch_fields`` and put each
+    gradient step's DrQ offsets (``image_obs.shift_shape``, uniform in ``[0, 2 image_pad]``, from the last key
+    of the step's split) in the minibatch for ``augment``."""
 
     def __init__(self, algo: ModuleType, config: Any, spec: Any, opt: ModuleType, xp: shim.Backend):
         self.algo, self.config, self.spec, self.xp = algo, config, spec, xp
+        image_obs.check_algo(algo, spec, config)
+        self.image_shape = image_obs.image_shape(spec)
+        self.critic_loss, self.actor_loss = algo.critic_loss, algo.actor_loss
+        self.batch_fields = BATCH_FIELDS
+        if self.image_shape:
+            self.critic_loss, self.actor_loss = image_obs.critic_loss(algo), image_obs.actor_loss(algo)
+            self.batch_fields = BATCH_FIELDS + image_obs.FIELDS
         self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
         self.alpha_tx = opt.adam(config.alpha_learning_rate)
@@ -127,12 +143,25 @@ class SACFamilyBase:
         self.critic_noise_shape = None if shape is None else tuple(shape(config))
         # ``actor_every`` (RLPD): the actor and the temperature move on every actor_every-th gradient step only.
         self.actor_every = int(getattr(config, "actor_every", 1))
+        # Keys per gradient step: eps_next, eps[, the critic noise u][, the DrQ offsets].
+        self.step_keys = 2 + (self.critic_noise_shape is not None) + bool(self.image_shape)
         self.trace_count = 0  # traces of the compiled update / step (tests assert no retracing)
 
     def init_params(self, key_words: np.ndarray) -> dict:
         s = self.spec
-        return init_on_numpy(self.algo.init_params, key_words, self.xp, s.obs_dim, s.critic_obs_dim, s.action_dim,
+        init = self.algo.init_params
+        if self.image_shape:
+            init = functools.partial(image_obs.init_params, self.algo, self.image_shape)
+        return init_on_numpy(init, key_words, self.xp, s.obs_dim, s.critic_obs_dim, s.action_dim,
                              self.config, targets=("critic",))
+
+    def draw_shifts(self, key: Any, batch_size: int) -> Any:
+        """A gradient step's DrQ offsets [2, B, 2], uniform in ``[0, 2 image_pad]``."""
+        return self.xp.random.randint(key, image_obs.shift_shape(batch_size), 0, 2 * self.config.image_pad + 1)
+
+    def augment(self, mb: dict) -> dict:
+        """The minibatch with its images shifted (without images: unchanged)."""
+        return image_obs.augment(mb, self.config.image_pad) if self.image_shape else mb
 
     def call_metrics(self, stacked: dict) -> dict:
         """A call's metrics from their ``[U]`` stacks: means; with ``actor_every`` > 1 the actor's metrics
@@ -155,9 +184,9 @@ class SACFamilyBase:
             obs_norm=normalizer.stats_init(s.obs_dim, xp), critic_norm=normalizer.stats_init(s.critic_obs_dim, xp),
             reward_norm=normalizer.stats_init(1, xp), key=k_state, steps=xp.zeros((), dtype=xp.int32))
 
-    @staticmethod
-    def weights(state: SACState) -> dict:
-        return sac.policy_weights(state.actor, state.obs_norm)
+    def weights(self, state: SACState) -> dict:
+        weights = sac.policy_weights(state.actor, state.obs_norm)
+        return image_obs.add_encoder(weights, state.critic, self.config) if self.image_shape else weights
 
     def reward_scale(self, state: SACState) -> Any:
         if self._reward_scale is None:
@@ -180,6 +209,7 @@ class TD3Base:
     ``policy_delay`` gradient steps."""
 
     def __init__(self, config: Any, spec: Any, opt: ModuleType, xp: shim.Backend):
+        image_obs.check_algo(td3, spec, config)
         self.config, self.spec, self.xp = config, spec, xp
         self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)

@@ -7,7 +7,7 @@ interface::
     learner = SACFamilyLearner(sac, config, spec)
     state = learner.init(mx.random.key(0))          # SACState of mx arrays
     state, metrics = learner.update(state, batch)    # batch: dict of arrays [U, B, ...]; {} is a no-op
-    weights = SACFamilyLearner.weights(state)
+    weights = learner.weights(state)
 
 The losses are the algorithm modules' shim-written functions run on mlx arrays (``critic_loss``,
 ``actor_loss``, ``temperature_loss``, optional ``project_params`` and ``reward_scale``); the
@@ -29,11 +29,11 @@ replace ``lax.cond``.
 
 Randomness: the state's key is split into ``U + 1`` keys exactly as in JAX (the first becomes the
 next state's key); SAC-family step ``i`` splits ``keys[i + 1]`` into ``(k_next, k_pi)`` (RLPD: and a
-third key for its critic-subset uniforms ``u``) and draws ``eps_next``/``eps`` ~ N(0, 1) of shape
-``[B, noise_dim]``; TD3 draws ``eps_next`` from ``keys[i + 1]``.
+third key for its critic-subset uniforms ``u``; with images a last key for the DrQ offsets) and draws
+``eps_next``/``eps`` ~ N(0, 1) of shape ``[B, noise_dim]``; TD3 draws ``eps_next`` from ``keys[i + 1]``.
 MLX's normal draws differ from JAX's for the same key, so parity tests inject the JAX draws through
 ``update(..., noise={"eps_next": [U, B, N], "eps": [U, B, N]})`` with N the learner's ``noise_dim`` (the
-action dimension; SAC Flow: its chain's) (RLPD: also ``"u"``; TD3: ``eps_next`` only, N = A).
+action dimension; SAC Flow: its chain's) (RLPD: also ``"u"``; images: also ``"shift"``; TD3: ``eps_next`` only, N = A).
 
 This module imports mlx and numpy (and the shim-written ``unilab_jax`` modules) only, never jax or
 optax.
@@ -50,8 +50,8 @@ import mlx.core as mx
 import numpy as np
 
 from unilab_jax import xp as shim
+from unilab_jax.algos.offpolicy import image_obs, td3
 from unilab_jax.algos.offpolicy import learner_common as common
-from unilab_jax.algos.offpolicy import td3
 from unilab_jax.algos.offpolicy.sac import Norms, SACState
 from unilab_jax.algos.offpolicy.td3 import TD3State
 from unilab_jax.core import polyak
@@ -71,10 +71,10 @@ def _as_key(key: Any) -> mx.array:
     return key if isinstance(key, mx.array) else mx.array(np.asarray(key, dtype=np.uint32))
 
 
-def _prepare_batch(batch: Mapping[str, Any]) -> dict:
+def _prepare_batch(batch: Mapping[str, Any], fields: tuple[str, ...] = BATCH_FIELDS) -> dict:
     """``learner_common.prepare_batch`` of the fields as mx arrays."""
     return common.prepare_batch({k: batch[k] if isinstance(batch[k], mx.array) else mx.array(np.asarray(batch[k]))
-                                 for k in BATCH_FIELDS})
+                                 for k in fields if k in batch}, fields)
 
 
 class _Compiled:
@@ -133,15 +133,16 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         project = self._project or (lambda p: p)
         actor, critic, target_critic, actor_opt, critic_opt, log_alpha, alpha_opt, steps = nets_opt
         norms = Norms(*norms)
+        mb = self.augment(mb)
         # 1. critics
-        (_, c_metrics), c_grads = XP.value_and_grad(algo.critic_loss, has_aux=True)(
+        (_, c_metrics), c_grads = XP.value_and_grad(self.critic_loss, has_aux=True)(
             critic, target_critic, actor, log_alpha, norms, mb, eps_next, cfg)
         updates, new_critic_opt = self.critic_tx.update(c_grads, critic_opt, critic)
         new_critic = project(optim.apply_updates(critic, updates))
         new_actor, new_actor_opt, new_log_alpha, new_alpha_opt = actor, actor_opt, log_alpha, alpha_opt
         if do_actor:
             # 2. actor, against the updated critics
-            (_, (a_metrics, log_prob)), a_grads = XP.value_and_grad(algo.actor_loss, has_aux=True)(
+            (_, (a_metrics, log_prob)), a_grads = XP.value_and_grad(self.actor_loss, has_aux=True)(
                 actor, new_critic, log_alpha, norms, mb, eps, cfg)
             updates, new_actor_opt = self.actor_tx.update(a_grads, actor_opt, actor)
             new_actor = project(optim.apply_updates(actor, updates))
@@ -169,16 +170,18 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
 
         ``noise`` (testing/parity only): ``{"eps_next": [U, B, N], "eps": [U, B, N]}`` (N = ``noise_dim``)
         replacing the standard-normal draws made from the state's key (the key still advances as usual);
-        algorithms with a critic noise (RLPD) also take ``"u": [U, *critic_noise_shape]``.
+        algorithms with a critic noise (RLPD) also take ``"u": [U, *critic_noise_shape]``, tasks with images
+        ``"shift": [U, 2, B, 2]`` (the DrQ offsets).
         """
         if not batch:
             return state, {}
-        batch = _prepare_batch(batch)
+        batch = _prepare_batch(batch, self.batch_fields)
         state, norms = self.normalize(state, batch)
         norms = tuple(norms)
 
         n = batch["reward"].shape[0]
-        _check_noise(noise, ("eps_next", "eps") + (() if self.critic_noise_shape is None else ("u",)), n)
+        _check_noise(noise, ("eps_next", "eps") + (() if self.critic_noise_shape is None else ("u",))
+                     + (("shift",) if self.image_shape else ()), n)
         keys = XP.random.split(state.key, n + 1)
         step0 = int(state.steps.item()) if self.actor_every > 1 else 0  # the actor's schedule, read once per call
         carry = (state.actor, state.critic, state.target_critic, state.actor_opt, state.critic_opt,
@@ -187,13 +190,16 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
         for i in range(n):
             mb = {k: v[i] for k, v in batch.items()}
             shape = (int(mb["action"].shape[0]), self.noise_dim)
-            ks = XP.random.split(keys[i + 1], 2 if self.critic_noise_shape is None else 3)
+            ks = XP.random.split(keys[i + 1], self.step_keys)
             eps_next = _noise(noise, "eps_next", i, shape, ks[0])
             eps = _noise(noise, "eps", i, shape, ks[1])
             if self.critic_noise_shape is not None:
                 u = (mx.array(np.asarray(noise["u"][i], np.float32)) if noise is not None
                      else mx.random.uniform(shape=self.critic_noise_shape, dtype=mx.float32, key=ks[2]))
                 eps_next = (eps_next, u)
+            if self.image_shape:
+                mb[image_obs.SHIFT] = (mx.array(np.asarray(noise["shift"][i], np.int32)) if noise is not None
+                                       else self.draw_shifts(ks[-1], shape[0]))
             do_actor = (step0 + i + 1) % self.actor_every == 0
             carry, m = self._steps[do_actor](carry, norms, mb, eps_next, eps)
             mx.eval(carry, m)  # one eval per compiled step

@@ -45,8 +45,9 @@ from unilab_jax.lazy import learner_maker
 
 SYNC = "async"
 BUFFER = "replay"
+IMAGES = True  # learns from image observations (``image_obs``)
 
-__all__ = ["SYNC", "BUFFER", "Config", "RLPDConfig", "extras", "act", "make_learner", "Norms", "actor_loss",
+__all__ = ["SYNC", "BUFFER", "IMAGES", "Config", "RLPDConfig", "extras", "act", "make_learner", "Norms", "actor_loss",
            "critic_loss", "critic_noise_shape", "init_params", "temperature_loss"]
 
 

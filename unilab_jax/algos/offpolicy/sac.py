@@ -21,7 +21,11 @@ Actor" (ICML 2018, arXiv:1801.01290) and "Soft Actor-Critic Algorithms and Appli
   workers with the actor) and of ``critic_obs`` (learner only), updated from the first of the U
   minibatches of every ``update`` call, so the count tracks sampled data rather than U x B.
 
-Published weights: ``{"actor": mlp, "obs_norm": RunningStats}``. The pure loss functions below are
+Images (``spec.image_shape``, ``image_obs``): a DrQ encoder in the critic's parameters, its features appended
+to the actor's and critic's observations; ``encoder_*``, ``feature_dim`` and ``image_pad`` configure it.
+
+Published weights: ``{"actor": mlp, "obs_norm": RunningStats}`` (with images also ``encoder``,
+``encoder_strides``). The pure loss functions below are
 written against the shim (numpy / jax / mlx); the learners are ``learner_jax`` and ``learner_mlx`` beside it.
 """
 
@@ -33,6 +37,7 @@ from typing import Any, NamedTuple
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
+from unilab_jax.algos.offpolicy import image_obs
 from unilab_jax.core import distributions, normalizer
 from unilab_jax.core import sac as sac_core
 from unilab_jax.lazy import learner_maker
@@ -42,6 +47,7 @@ BUFFER = "replay"
 LOG_STD_MIN = -5.0
 LOG_STD_MAX = 2.0
 ACTIVATION = "relu"  # hidden activation of actor and critics (the workers' ``act`` must agree)
+IMAGES = True  # learns from image observations (``image_obs``)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +96,13 @@ class SACConfig(OffPolicyConfig):
     init_alpha: float = 0.2
     autotune_alpha: bool = True
     target_entropy_per_dim: float = -1.0  # target entropy = this * action_dim
+    # Image encoder (read only for tasks with ``spec.image_shape``; SAC, RLPD, SAC Flow): 3x3 convolutions of
+    # ``encoder_channels`` with ``encoder_strides`` (one per convolution), a linear layer to ``feature_dim``
+    # features (LayerNorm, tanh), and DrQ random shifts of up to ``image_pad`` pixels (0: no augmentation).
+    encoder_channels: tuple[int, ...] = (32, 32, 32, 32)
+    encoder_strides: tuple[int, ...] = (2, 1, 1, 1)
+    feature_dim: int = 50
+    image_pad: int = 4
 
 
 Config = SACConfig
@@ -113,6 +126,8 @@ def check_config(cfg: Any) -> None:
         problems.append(f"compute_dtype must be 'auto', 'float32' or 'bfloat16', got {cfg.compute_dtype!r}")
     if getattr(cfg, "policy_delay", 1) < 1:
         problems.append("policy_delay must be >= 1")
+    if hasattr(cfg, "feature_dim"):
+        problems.extend(image_obs.check_config(cfg))
     if problems:
         raise ValueError(f"{type(cfg).__name__}: " + "; ".join(problems))
 
@@ -205,8 +220,10 @@ def tanh_gaussian_act(weights: dict, obs: Any, noise: Any, deterministic: bool,
     return xp.astype(xp.tanh(u), xp.float32), {}
 
 
-def act(weights: dict, obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
-    """obs [M, obs_dim], noise [M, A] standard normal -> (action [M, A] in (-1, 1), {})."""
+def act(weights: dict, obs: Any, noise: Any, deterministic: bool = False, image: Any = None) -> tuple[Any, dict]:
+    """obs [M, obs_dim], noise [M, A] standard normal -> (action [M, A] in (-1, 1), {}); weights with an
+    encoder need ``image`` (uint8 [M, H, W, C]), whose features widen ``obs``."""
+    weights, obs = image_obs.actor_inputs(weights, obs, image)
     return tanh_gaussian_act(weights, obs, noise, deterministic)
 
 

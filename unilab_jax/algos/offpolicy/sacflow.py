@@ -27,6 +27,7 @@ from typing import Any
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
+from unilab_jax.algos.offpolicy import image_obs
 from unilab_jax.algos.offpolicy.sac import (
     LOG_STD_MAX,
     LOG_STD_MIN,
@@ -46,9 +47,10 @@ from unilab_jax.lazy import learner_maker
 
 SYNC = "async"
 BUFFER = "replay"
+IMAGES = True  # learns from image observations (``image_obs``)
 MAX_FLOW_STEPS = 16
 
-__all__ = ["SYNC", "BUFFER", "Config", "SACFlowConfig", "extras", "act", "make_learner", "noise_dim",
+__all__ = ["SYNC", "BUFFER", "IMAGES", "Config", "SACFlowConfig", "extras", "act", "make_learner", "noise_dim",
            "init_params", "critic_loss", "actor_loss", "temperature_loss", "sample"]
 
 
@@ -121,10 +123,12 @@ def sample(actor: dict, obs_norm: normalizer.RunningStats, obs: Any, noise: Any,
     return flow.squash(pre, log_prob)
 
 
-def act(weights: dict, obs: Any, noise: Any, deterministic: bool = False) -> tuple[Any, dict]:
+def act(weights: dict, obs: Any, noise: Any, deterministic: bool = False, image: Any = None) -> tuple[Any, dict]:
     """obs [M, obs_dim], noise [M, noise_dim(A)] standard normal -> (action [M, A] in (-1, 1), {}).
-    Deterministic: the noise-free rollout from ``a_0 = 0`` (``noise`` unread)."""
+    Deterministic: the noise-free rollout from ``a_0 = 0`` (``noise`` unread). Weights with an encoder need
+    ``image`` (uint8 [M, H, W, C], as SAC's ``act``)."""
     xp = shim.namespace(obs)
+    weights, obs = image_obs.actor_inputs(weights, obs, image)
     action, _ = sample(weights["actor"], weights["obs_norm"], obs, noise, deterministic)
     return xp.astype(action, xp.float32), {}
 
