@@ -15,7 +15,8 @@ With the difference, the shaping terms of any trajectory sum to ``potential(last
 
 State vectors (float64, world frame, metres):
 
-* ``peg_insertion``: ``[tip (3), hole (3)]``: the peg's tip; the centre of the hole's opening.
+* ``peg_insertion``: ``[tip (3), hole (3), tip - hole (3)]``: the peg's tip; the centre of the hole's
+  opening; their difference (what the task asks to close to within 1.5 mm, given directly to policies).
 * ``pick_place``: ``[object (3), object quat (4), bin (3)]``: the cube's centre and orientation;
   the centre of the bin's floor.
 """
@@ -132,9 +133,13 @@ def peg_success(tip: np.ndarray, hole: np.ndarray, g: PegGeometry) -> bool:
 
 
 def peg_potential(tip: np.ndarray, hole: np.ndarray, g: PegGeometry) -> float:
-    """In [0, 1]: closeness of the tip to the bottom of the required insertion."""
+    """In [0, 1]: the mean of reaching (closeness of the tip to the bottom of the required insertion, 10 / m)
+    and alignment (closeness of the tip to the hole's axis, 100 / m). Reaching alone hardly tells a peg
+    jammed on the block's top 5 mm off the axis from one over the opening (0.005 apart); alignment does."""
     goal = hole - np.array([0.0, 0.0, g.depth])
-    return float(1.0 - np.tanh(10.0 * np.linalg.norm(tip - goal)))
+    reach = 1.0 - np.tanh(10.0 * np.linalg.norm(tip - goal))
+    align = 1.0 - np.tanh(100.0 * np.linalg.norm(tip[:2] - hole[:2]))
+    return float(0.5 * (reach + align))
 
 
 class PegInsertion(RobotTask):
@@ -143,7 +148,7 @@ class PegInsertion(RobotTask):
 
     name = "peg_insertion"
     episode_length = 100
-    state_dim = 6
+    state_dim = 9
     arms = ("franka", "ur5e")
     grip_closed_at_reset = True
     block_x = (0.42, 0.58)
@@ -181,7 +186,8 @@ class PegInsertion(RobotTask):
 
     def state(self, model, data):
         hole = data.mocap_pos[self._mocap] + [0.0, 0.0, self.g.block_height]
-        return np.concatenate([data.site_xpos[self._tip], hole])
+        tip = data.site_xpos[self._tip]
+        return np.concatenate([tip, hole, tip - hole])
 
     def success(self, state, tcp):
         return peg_success(state[:3], state[3:6], self.g)
