@@ -23,6 +23,10 @@ must render every camera of ``cameras`` at ``image_size`` (``camera_mismatch``),
 Reward: the robot's (one term, ``task``). An episode ends when the robot says so (success: terminated;
 its time limit: truncated) or after ``episode_length`` steps (truncated).
 
+``lock_rotation`` zeroes the rotation part of every action (the policy's and the operator's): the tcp keeps
+its starting orientation (peg insertion: a learner's small rotation commands integrate into a tilt or
+yaw that jams the square peg).
+
 Operator channel (``operator``, ``unilab_jax.robots.operator``): ``gate`` lets the scripted expert, acting
 as a human operator, take over an env's robot when the policy leaves the safe region, drops the object or
 stalls, for ``operator_segment`` steps; ``always`` has it drive whole episodes (demonstrations). The
@@ -86,6 +90,9 @@ class RobotTaskConfig:
     operator_segment: int = 20  # control steps per takeover (gate)
     operator_stall_steps: int = 15  # policy steps without reward progress before a takeover (gate)
     operator_box: tuple[float, ...] = OperatorConfig.box  # safe tcp region (x, y, z) low then high (gate)
+    # Zero the rotation command (action[3:6], after any operator's): the tcp keeps the orientation it starts with,
+    # as a safety pose box without rotation room would. The executed action is the transition's.
+    lock_rotation: bool = False
 
     def image_shape(self) -> tuple[int, ...]:
         """``(S, S, 3 x cameras x frame_stack)`` of the image observation; () without cameras."""
@@ -325,6 +332,8 @@ class RobotTask(base.Task):
         for i, op in enumerate(self.operators):
             a[i], by_operator = op.act(self._last[i], a[i])
             source[i] = SOURCE_OPERATOR if by_operator else SOURCE_POLICY
+        if self.config.lock_rotation:
+            a[:, 3:6] = 0.0
         got = self._map(lambda i, ai: self.robots[i].step(ai), list(a))
         lost = {i for i, g in enumerate(got) if isinstance(g, RobotError)}
         if lost:  # no transition for anyone: every env starts again once the lost robots are back
@@ -340,7 +349,7 @@ class RobotTask(base.Task):
             self._last[i] = g.obs
         extras = {"source": source, "intervention_rate": np.zeros(self.num_envs, np.float32),
                   "interventions": np.zeros(self.num_envs, np.float32)}
-        if self.operators:
+        if self.operators or self.config.lock_rotation:
             extras["action"] = a
         for i, op in enumerate(self.operators):
             op.observe(float(reward[i]))

@@ -6,8 +6,10 @@ scores ~35 of 200). Evaluations at 100k, 200k, 300k, 400k and the final one, 8 r
   [158 189 162 128 200] [165 197 198 140 124] [172 197 138 188 199] [196 198 163 188 200]
   [176 188 196 188 199] [146 198 199 196 195] [165 195 180 109 181] [180 198 200 199 200]
 The policy is good by 200k in every run but dips now and then (109-140 in 5 of the 32 later evaluations;
-a fresh-clone CI run ended on 129), so a single evaluation is no threshold: the test asserts the best
-evaluation (lowest seen 188) and the mean of the evaluations from 200k on (lowest seen 165).
+a fresh-clone CI run ended on 129), and more under load: a fresh-clone CI run with three other jobs on the
+2 cores (load 8) evaluated [181 181 96 118 163]. A single evaluation is no threshold: the test asserts the
+best evaluation (lowest seen 181) and the mean of the evaluations from 200k on (lowest seen 139; 165-199
+on an idle VM), both far above a random policy's 35.
 """
 
 import importlib.util
@@ -36,5 +38,5 @@ def test_sacflow_learns_cartpole(tmp_path):
     evals = [(r["step"], r["eval/return"]) for r in rows if "eval/return" in r]
     assert len(evals) >= 4, evals
     later = [ret for step, ret in evals if step >= 200_000]
-    assert max(ret for _, ret in evals) >= 175.0, evals
-    assert sum(later) / len(later) >= 140.0, evals
+    assert max(ret for _, ret in evals) >= 165.0, evals
+    assert sum(later) / len(later) >= 100.0, evals

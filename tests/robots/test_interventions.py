@@ -44,10 +44,11 @@ def test_operator_takes_over_when_progress_stalls_and_hands_back():
     op = ExpertOperator(SPEC, OperatorConfig(mode="gate", segment_steps=2, stall_steps=3))
     inside, policy = _obs([0.45, 0.0, 0.25]), np.zeros(7, np.float32)
     sources = []
-    for reward in [0.1, 0.2, 0.2, 0.2, 0.2, 0.2, 0.2, 0.9]:
+    for reward in [0.1, 0.1, 0.0, 0.01, -0.05, 0.0, 0.0, 0.7]:  # potential differences: returns 0.1, 0.2, 0.2, ...
         sources.append(op.act(inside, policy)[1])
         op.observe(reward)
-    # steps 1-5: policy (best 0.2 after step 2; no progress after steps 3, 4, 5 -> a stall of 3 seen at step 6),
+    # steps 1-5: policy (best return 0.2 after step 2; it rises by less than stall_eps = 0.02 (0.21) or falls
+    # (0.16) after steps 3, 4, 5 -> a stall of 3 seen at step 6),
     # steps 6-7: the operator's segment, then the policy with a fresh stall allowance.
     assert sources == [False, False, False, False, False, True, True, False]
     assert op.takeovers == 1 and op.last_reason == "stalled" and op.operator_steps == 2

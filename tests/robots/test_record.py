@@ -115,3 +115,51 @@ def test_policy_state_puts_the_object_state_in_the_observation():
     finally:
         plain.close()
         task.close()
+
+
+def test_recorded_demos_are_what_the_learner_sees_online(tmp_path):
+    """Demonstrations recorded on in-process robots with the policy state, the dense reward and the rotation
+    locked: each stored action is the expert's action on the stored observation as executed (unscaled, its
+    rotation zeroed by ``lock_rotation``), the observation is the
+    task's online one (its policy-state block equals the privileged block of the critic observation), and each
+    reward is the potential-based shaping computed by hand from the stored critic observations: the rewards of
+    an episode sum to the success bonus plus the potential's change (Ng et al.'s telescoping sum)."""
+    import tasks
+    from unilab_jax.robots.experts import make_expert
+    from unilab_jax.robots.tasks import SUCCESS_BONUS, PegGeometry, peg_potential
+
+    task = tasks.make("robot_peg_insertion", num_envs=2, seed=4, overrides={"policy_state": True, "dense_reward": True,
+                                                                             "lock_rotation": True})
+    out = str(tmp_path / "demos")
+    try:
+        with ReplayStore(out, record.demo_layout(task.spec)) as store:
+            summary = record._run(task, [teleop.make_device("expert", task.robot_spec) for _ in range(2)], store, 3)
+            store.flush()
+            rows = store.read(store.first_row, store.committed)
+        spec, o, p = task.robot_spec, task.spec.obs_dim, task.robot_spec.privileged_dim
+    finally:
+        task.close()
+    assert summary["episodes"] == 3 and summary["successes"] == 3
+    privileged = rows["critic_obs"][:, o:o + p]
+    np.testing.assert_array_equal(rows["obs"][:, spec.proprio_dim:spec.proprio_dim + p], privileged)
+    g = PegGeometry()
+
+    def potential(critic_obs):
+        state = critic_obs[o + 8:o + p].astype(np.float64)
+        return peg_potential(state[:3], state[3:6], g)
+
+    rotated = 0.0  # the largest rotation command of the expert: the lock had something to zero
+    for e in range(3):
+        ep = np.flatnonzero(rows["episode"] == e)
+        expert = make_expert(spec)
+        for i in ep:
+            commanded = expert({"privileged": privileged[i]})
+            rotated = max(rotated, float(np.abs(commanded[3:6]).max()))
+            np.testing.assert_array_equal(rows["action"][i], np.r_[commanded[:3], 0.0, 0.0, 0.0, commanded[6]])
+            want = (SUCCESS_BONUS * rows["terminated"][i] + potential(rows["next_critic_obs"][i])
+                    - potential(rows["critic_obs"][i]))
+            assert rows["reward"][i] == pytest.approx(want, abs=1e-4)
+        total = rows["reward"][ep].sum()
+        change = potential(rows["next_critic_obs"][ep[-1]]) - potential(rows["critic_obs"][ep[0]])
+        assert total == pytest.approx(SUCCESS_BONUS + change, abs=1e-3)
+    assert rotated > 1e-4

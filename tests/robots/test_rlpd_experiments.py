@@ -70,25 +70,27 @@ def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message
 
 def test_rlpd_improves_on_its_first_evaluation(tmp_path):
     """The cheapest learning configuration: state-based peg insertion (``--observation=state``) with the dense
-    reward, three robots at
-    speed 50 (one trains, two evaluate every 300 steps while it does), 900 env steps, utd 8.
+    reward and the rotation locked, three robots at speed 50 (one trains, two evaluate every 300 steps while it
+    does), 900 env steps, utd 8.
 
-    Measured on the 2-core VM (seeds 0-3, eval return at 300 / 600 / 900 steps): 0.68 / 5.87 / 10.97,
-    0.95 / 10.5 / 11.69, 1.18 / 4.58 / 51.19, 1.11 / 3.25 / 11.34 (gains 10.2-50.0; raw data
-    bench/results/local/rlpd_peg_learning_sweep.txt); 60-100 s wall, ~40 s CPU, the VM shared with other jobs.
-    The threshold (final > first + 2) sits far below the smallest gain measured. The run samples through the
-    device mirror (``--replay_on_device=on``, as on a GPU) to cover prior data composed with it; the sweep
-    sampled on the host (seed 0 through the mirror: 0.73 / 3.12 / 14.11).
+    The dense reward is potential-based (10 x success + potential(s') - potential(s)): an episode without success
+    returns the potential's change, in [-1, 1]. Measured on the 2-core VM (seeds 0-3, eval return at 300 / 600 /
+    900 steps): -0.03 / 0.09 / 0.26, -0.03 / 0.05 / 0.32, -0.02 / 0.14 / 0.40, -0.02 / 0.07 / 0.20 (gains
+    0.22-0.42, no success yet; raw data bench/results/local/rlpd_peg_learning_sweep.txt); 54-65 s wall, ~38 s CPU,
+    the VM shared with other jobs. The threshold (final > first + 0.1) sits at half the smallest gain measured. The
+    run samples through the device mirror (``--replay_on_device=on``, as on a GPU) to cover prior data composed
+    with it.
     """
     logdir = tmp_path / "run"
     robots = ",".join(["sim:franka_emika_panda"] * 3)
     out = _script("rlpd_franka_peg.py", "--observation=state", f"--robots={robots}", "--num_workers=1", "--eval_envs=2",
                   "--eval_every=300",
                   "--speed=50", "--total_steps=900", "--dense_reward", "--config", "utd=8", "--config",
-                  "init_alpha=0.05", "--replay_on_device=on", f"--logdir={logdir}", timeout=400)
+                  "init_alpha=0.05", "--task_config=lock_rotation=true", "--replay_on_device=on", f"--logdir={logdir}",
+                  timeout=400)
     assert out.returncode == 0, out.stderr[-3000:]
     evals = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
     evals = [(r["step"], r["eval/return"]) for r in evals if "eval/return" in r]
     assert len(evals) >= 3 and evals[0][0] <= 400, evals
     print("eval returns:", evals)
-    assert evals[-1][1] > evals[0][1] + 2.0, evals
+    assert evals[-1][1] > evals[0][1] + 0.1, evals

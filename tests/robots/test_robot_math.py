@@ -13,12 +13,15 @@ from unilab_jax.robots.interface import BadRequest, Health, RobotSpec, check_act
 from unilab_jax.robots.serve import parse_faults
 from unilab_jax.robots.sim import apply_delta, gripper_ctrl, gripper_opening, proprio_vector
 from unilab_jax.robots.tasks import (
+    SUCCESS_BONUS,
     BinGeometry,
     PegGeometry,
+    PegInsertion,
     in_bin,
-    peg_dense_reward,
+    peg_potential,
     peg_success,
-    pick_place_dense_reward,
+    pick_place_potential,
+    shaped_reward,
 )
 
 
@@ -97,7 +100,49 @@ def test_peg_success_and_reward():
     assert peg_success(np.array([0.501, -0.001, 0.029]), hole, g)
     assert not peg_success(np.array([0.501, 0.0, 0.031]), hole, g)  # not deep enough
     assert not peg_success(np.array([0.512, 0.0, 0.0]), hole, g)  # outside the 11.5 mm half width
-    assert peg_dense_reward(np.array([0.5, 0.0, 0.03]), hole, g) == pytest.approx(1.0)
+    assert peg_potential(np.array([0.5, 0.0, 0.03]), hole, g) == pytest.approx(1.0)
+    # 5 cm straight above the bottom of the insertion: aligned, reaching 1 - tanh(0.5)
+    assert peg_potential(np.array([0.5, 0.0, 0.08]), hole, g) == pytest.approx((1 + 1 - math.tanh(0.5)) / 2)
+    # on the block's top 5 mm off the axis vs over the opening: alignment tells them apart (reaching: by 0.005)
+    jammed = peg_potential(np.array([0.505, 0.0, 0.05]), hole, g)
+    over = peg_potential(np.array([0.5, 0.0, 0.05]), hole, g)
+    assert over - jammed == pytest.approx((math.tanh(10 * math.hypot(0.005, 0.02)) - math.tanh(0.2)
+                                           + math.tanh(0.5)) / 2)
+    assert over - jammed > 0.2
+
+
+def test_shaped_reward_pays_progress_and_success():
+    assert shaped_reward(0.8, 0.5, False) == pytest.approx(0.3)
+    assert shaped_reward(0.5, 0.8, False) == pytest.approx(-0.3)  # moving away costs what approaching paid
+    assert shaped_reward(0.9, 0.9, True, bonus=10.0) == pytest.approx(10.0)
+    hole = np.array([0.5, 0.0, 0.05])
+    state = np.concatenate([[0.5, 0.0, 0.08], hole])  # tip 3 cm above the opening
+    inserted = np.concatenate([[0.5, 0.0, 0.029], hole])
+    sparse, dense = PegInsertion("franka"), PegInsertion("franka", dense_reward=True)
+    assert sparse.reward(state, np.zeros(3), previous=0.2) == (0.0, False)
+    assert sparse.reward(inserted, np.zeros(3), previous=0.2) == (1.0, True)
+    r, success = dense.reward(state, np.zeros(3), previous=0.2)
+    assert not success and r == pytest.approx((2 - math.tanh(0.5)) / 2 - 0.2)
+    r, success = dense.reward(inserted, np.zeros(3), previous=0.9)
+    assert success and r == pytest.approx(SUCCESS_BONUS + (2 - math.tanh(0.01)) / 2 - 0.9)
+
+
+def test_finishing_beats_hovering_near_the_hole():
+    """The episode ends on success. From a state of potential 0.5, at gamma 0.95 over the 100-step episode:
+    hover 2 mm above the insertion's bottom (potential 1 - tanh(0.02)) for the remaining 99 steps, or go one
+    more step and succeed. The potential itself as the reward (the former dense reward: potential + success)
+    paid hovering 19.68 against 2.00 for finishing; the difference pays 0.49 against 10.50."""
+    g, hole, gamma = PegGeometry(), np.array([0.5, 0.0, 0.05]), 0.95
+    hover = peg_potential(np.array([0.5, 0.0, 0.032]), hole, g)
+    done = peg_potential(np.array([0.5, 0.0, 0.029]), hole, g)
+    discount = gamma ** np.arange(99)
+    old_hover = float(np.sum(discount * hover))
+    old_finish = done + 1.0
+    assert old_hover == pytest.approx(19.68, abs=0.01) and old_finish == pytest.approx(2.00, abs=0.01)
+    new_hover = shaped_reward(hover, 0.5, False) + float(np.sum(discount[1:] * shaped_reward(hover, hover, False)))
+    new_finish = shaped_reward(done, 0.5, True)
+    assert new_hover == pytest.approx(hover - 0.5) and new_finish == pytest.approx(SUCCESS_BONUS + done - 0.5)
+    assert new_finish > 20 * new_hover
 
 
 def test_in_bin():
@@ -108,14 +153,14 @@ def test_in_bin():
     assert not in_bin(np.array([0.56, -0.2, 0.03]), b, g)  # 8 cm off-centre, walls at 7 cm
 
 
-def test_pick_place_dense_reward():
+def test_pick_place_potential():
     g = BinGeometry()
     b = np.array([0.5, -0.2, 0.0])
     held_over_bin = np.array([0.5, -0.2, 0.1])
-    assert pick_place_dense_reward(held_over_bin, held_over_bin, b, g) == pytest.approx(1.0)
+    assert pick_place_potential(held_over_bin, held_over_bin, b, g) == pytest.approx(1.0)
     # on the table, 0.1 m from the tcp: only the reaching term, 1 - tanh(1)
     obj = np.array([0.5, 0.1, 0.02])
-    assert pick_place_dense_reward(obj, obj + [0.0, 0.0, 0.1], b, g) == pytest.approx((1 - math.tanh(1.0)) / 3)
+    assert pick_place_potential(obj, obj + [0.0, 0.0, 0.1], b, g) == pytest.approx((1 - math.tanh(1.0)) / 3)
 
 
 def test_move_action_is_proportional_and_clipped():

@@ -7,7 +7,8 @@ policy acted on), then ``op.observe(reward)`` with the step's reward. Modes:
 
 * ``gate`` (HG-DAgger's gating, Kelly et al. 2019): the operator takes control when the policy leaves the
   safe region (tcp outside ``box``), drops the object it was carrying (pick-and-place), or makes no
-  progress (the episode's best reward has not risen by ``stall_eps`` for ``stall_steps`` steps); it then
+  progress (the episode's return so far has not risen above its best by ``stall_eps`` for ``stall_steps``
+  steps; with the dense reward's potential-based shaping the return is the progress made); it then
   drives for ``segment_steps`` steps and hands control back. ``stall_steps`` start again at each hand-back.
   The scripted expert's phase machine runs on across an episode's segments (it starts over by itself
   when the cube is not where its phase expects it).
@@ -38,7 +39,7 @@ class OperatorConfig:
     mode: str = "gate"
     segment_steps: int = 20  # control steps the operator drives per takeover
     stall_steps: int = 15  # policy steps without progress before a takeover
-    stall_eps: float = 0.02  # progress: the episode's best reward rising by at least this
+    stall_eps: float = 0.02  # progress: the episode's return so far rising above its best by at least this
     box: tuple[float, ...] = (0.3, -0.35, 0.0, 0.7, 0.28, 0.35)  # safe tcp region: (x, y, z) low, then high
 
     def __post_init__(self):
@@ -68,6 +69,7 @@ class ExpertOperator:
         self.expert.reset()
         self.left = 0  # operator steps left in the current segment (0: the policy drives)
         self.best = -np.inf
+        self.ret = 0.0  # the episode's return so far
         self.since_progress = 0
         self.carrying = False
         self.steps = self.operator_steps = self.takeovers = 0
@@ -116,7 +118,8 @@ class ExpertOperator:
 
     def observe(self, reward: float) -> None:
         """The step's reward: progress bookkeeping for the stall trigger."""
-        if reward > self.best + self.config.stall_eps:
-            self.best, self.since_progress = float(reward), 0
+        self.ret += float(reward)
+        if self.ret > self.best + self.config.stall_eps:
+            self.best, self.since_progress = self.ret, 0
         else:
             self.since_progress += 1

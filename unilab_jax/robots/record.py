@@ -102,9 +102,10 @@ def _run(task: Any, devices: list, store: Any, episodes: int) -> dict[str, Any]:
     while done_episodes < episodes:
         action = np.stack([devices[i](_privileged(task, critic[i])) for i in range(n)]).astype(np.float32)
         out = task.step(action)
+        executed = out.extras.get("action", action) if out.extras else action  # e.g. with lock_rotation
         steps += n
         for i in range(n):
-            rows[i].append({"obs": obs[i], "critic_obs": critic[i], "action": action[i], "reward": out.reward[i],
+            rows[i].append({"obs": obs[i], "critic_obs": critic[i], "action": executed[i], "reward": out.reward[i],
                             "next_obs": out.next_obs[i], "next_critic_obs": out.next_critic_obs[i],
                             "terminated": out.terminated[i], "truncated": out.truncated[i],
                             **{k: out.extras[k][i] for k in images}})

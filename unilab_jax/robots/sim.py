@@ -146,6 +146,7 @@ class SimRobot(Robot):
         self._t = 0
         self._target_pos = np.zeros(3)
         self._target_quat = np.array(scenes.HOME_TCP_QUAT)
+        self._potential = 0.0  # the task's potential after the last step (reset: of the initial state)
 
     # ---------------------------------------------------------------------------------------------
     # Contract
@@ -187,6 +188,7 @@ class SimRobot(Robot):
         mujoco.mj_forward(m, d)
         self._target_pos = d.site_xpos[self.ix.tcp_site].copy()
         self._target_quat = ik.mat_to_quat(d.site_xmat[self.ix.tcp_site])
+        self._potential = self.task.potential(self.task.state(m, d), d.site_xpos[self.ix.tcp_site])
         self._pending.clear()
         self._t = 0
         self._state, self._detail, self._ready = "ok", "", True
@@ -222,7 +224,9 @@ class SimRobot(Robot):
             raise RobotFaulted("simulation diverged: call reset()")
         obs = self._observe()
         state = self.task.state(self.model, self.data)
-        reward, success = self.task.reward(state, self.data.site_xpos[self.ix.tcp_site])
+        tcp = self.data.site_xpos[self.ix.tcp_site]
+        reward, success = self.task.reward(state, tcp, self._potential)
+        self._potential = self.task.potential(state, tcp)
         truncated = self._t >= self.spec.episode_length and not success
         if success or truncated:
             self._ready = False
