@@ -29,7 +29,6 @@ from typing import Any
 from unilab_jax import xp as shim
 from unilab_jax.core import normalizer, pixels
 
-FIELDS = ("image", "next_image")  # the replay fields a learner with images reads besides REPLAY_FIELDS
 SHIFT = "image_shift"  # a minibatch's DrQ offsets [2, B, 2] (image, next_image), put there by the learners
 
 

@@ -22,6 +22,7 @@ from unilab_jax.algos.offpolicy import image_obs, sac, td3
 from unilab_jax.algos.offpolicy.sac import Norms, SACState
 from unilab_jax.algos.offpolicy.td3 import TD3State
 from unilab_jax.core import normalizer
+from unilab_jax.fields import IMAGE_FIELDS
 from unilab_jax.fields import REPLAY_FIELDS as BATCH_FIELDS
 
 NP = shim.get("numpy")
@@ -127,7 +128,7 @@ class SACFamilyBase:
         self.batch_fields = BATCH_FIELDS
         if self.image_shape:
             self.critic_loss, self.actor_loss = image_obs.critic_loss(algo), image_obs.actor_loss(algo)
-            self.batch_fields = BATCH_FIELDS + image_obs.FIELDS
+            self.batch_fields = BATCH_FIELDS + IMAGE_FIELDS
         self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
         self.alpha_tx = opt.adam(config.alpha_learning_rate)
