@@ -16,8 +16,9 @@ batch and weights:
 
 The published weights carry ``--sync_mb`` MB of ballast beside the policy, so every weight sync moves the
 bytes of a large model (a VLA-sized actor) through the weight channel; the worker reads each new version
-(async: while collecting). Policies (``POLICIES``): ``sac`` (state SAC, 256x256 MLPs) and
-``sacflow_large`` (SAC Flow, K = 8 steps, 1024x1024x1024 velocity network: a large policy's update cost).
+(async: while collecting). Policies (``POLICIES``): ``sac`` (state SAC, 256x256 MLPs), ``sac_cnn`` (SAC from
+64 px camera images through DrQ's encoder: the servers render the front camera) and ``sacflow_large``
+(SAC Flow, K = 8 steps, 1024x1024x1024 velocity network: a large policy's update cost).
 
 Metrics (RLinf-USER's two, over the whole measured window after ``--warmup_s``): collection seconds per
 episode = window wall seconds / episodes completed per robot, and training seconds per update = window
@@ -43,8 +44,12 @@ from time_to_target import machine_info  # noqa: E402
 
 POLICIES = {
     "sac": ("sac", dict(actor_hidden=(256, 256), critic_hidden=(256, 256))),
+    "sac_cnn": ("sac", dict(actor_hidden=(256, 256), critic_hidden=(256, 256))),
     "sacflow_large": ("sacflow", dict(actor_hidden=(1024, 1024, 1024), critic_hidden=(256, 256), flow_steps=8)),
 }
+# Image SAC (CNN): the front camera's last 3 frames at 64 x 64 (uint8 [64, 64, 9]) through DrQ's encoder (the
+# SAC family's defaults: four 3x3 32-channel convolutions, strides 2, 1, 1, 1, 50 features) beside proprioception.
+IMAGE_TASKS = {"sac_cnn": {"cameras": ("front",), "image_size": 64, "frame_stack": 3}}
 COMMON = dict(updates_per_call=4, learning_starts=256, replay_capacity=100_000)
 
 
@@ -123,7 +128,7 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
     from unilab_jax.runtime.pool import WorkerPool
 
     serial = mode == "sync"
-    overrides = {"robots": tuple(addresses), "episode_length": args.episode_length}
+    overrides = {"robots": tuple(addresses), "episode_length": args.episode_length, **IMAGE_TASKS.get(policy, {})}
     import tasks
 
     probe = tasks.make("robot_pick_place", 1, args.seed, overrides)  # the spec (claims one robot, releases it)
@@ -192,8 +197,10 @@ def main(argv: list[str] | None = None) -> None:
 
     entries = inventory.parse(",".join(["sim:franka_emika_panda"] * args.robots))
     results = []
-    with inventory.Inventory(entries, "pick_place", args.speed, seed=args.seed) as inv:
-        for policy in args.policies:
+    for policy in args.policies:  # servers per policy: only an image policy's servers render
+        image = IMAGE_TASKS.get(policy, {})
+        with inventory.Inventory(entries, "pick_place", args.speed, seed=args.seed, cameras=image.get("cameras", ()),
+                                 image_size=image.get("image_size", 64)) as inv:
             for mode in args.modes:
                 r = run(mode, policy, list(inv.addresses), args)
                 results.append(r)
