@@ -6,12 +6,15 @@
 channel the loop switches per phase:
 
 1. demonstrations: the operator (the scripted expert) drives ``demo_episodes`` whole episodes
-   (``always``); a behaviour-cloned novice is fitted on them (``algos/imitation``; kept weak on purpose
-   with few demonstrations);
+   (``always``); a behaviour-cloned novice is fitted on them (``algos/imitation``, ``bc``: a budget of
+   gradient steps; 24 demonstrations give a novice of about 60% success on pick-and-place);
 2. each round: the novice drives ``episodes_per_round`` episodes with the operator gating (``gate``:
    it takes over when the novice is unsafe, drops the cube or stalls, and hands back after a segment);
-   only the operator's transitions (``source == operator``) join the dataset; the novice is refitted on
-   the aggregate;
+   only the operator's transitions (``source == operator``) join the dataset (``intervention_weight``
+   copies of each; 1: every row weighted alike, as the paper's aggregate); the novice is refitted on the
+   whole aggregate (``warm_start``: fine-tuned for ``refit_steps`` from the previous round's novice, so what
+   it learnt carries over; else retrained from fresh parameters); ``keep_best`` drops a refit whose
+   evaluation falls below the kept novice's (its data stay), so the next round starts from the kept one;
 3. after the initial fit and every round the novice is evaluated alone (``off``) for ``eval_episodes``.
 
 The novice acts deterministically on the task's critic observation (proprioception, identity, the
@@ -23,10 +26,11 @@ Logged per phase (``metrics.jsonl`` / TensorBoard, step = robot steps so far): `
 ``eval/return``, ``hgdagger/dataset_rows``, ``hgdagger/operator_rows`` (added this round),
 ``hgdagger/intervention_rate`` and ``hgdagger/interventions`` (per episode of the round),
 ``hgdagger/round_success_rate`` (the gated episodes' successes, with the operator's help),
-``hgdagger/bc_loss``, ``hgdagger/wall_s``.
+``hgdagger/bc_loss``, ``hgdagger/kept`` (1: this round's refit is the novice now),
+``hgdagger/kept_success_rate`` (the kept novice's evaluation), ``hgdagger/wall_s``.
 
 A separate loop rather than an algorithm of the trainer: HG-DAgger is round-based (collect with a fixed
-novice, then refit to convergence on the whole aggregate), keeps only the operator's segments, and
+novice, then refit on the whole aggregate), keeps only the operator's segments, and
 switches the operator between phases, none of which the streaming trainer (workers acting on published
 weights, a learner consuming replay) models (docs/ARCHITECTURE.md).
 """
@@ -53,12 +57,20 @@ class HGDaggerConfig:
     episodes_per_round: int = 8
     eval_episodes: int = 12
     max_env_steps: int | None = None  # robot steps of the whole run (None: no cap)
-    bc: bc.BCConfig = bc.BCConfig()
+    intervention_weight: int = 1  # times each round's operator row enters the aggregate (1: all rows alike)
+    warm_start: bool = True  # each round's refit fine-tunes the previous novice (False: fresh parameters)
+    keep_best: bool = False  # a refit whose evaluation falls below the kept novice's is dropped (its data kept)
+    refit_steps: int | None = None  # gradient steps of each round's refit (None: bc's budget)
+    bc: bc.BCConfig = bc.BCConfig(steps=2000)  # every fit's budget (the initial fit's and each refit's)
 
     def __post_init__(self):
         if self.demo_episodes < 1 or self.rounds < 0 or self.episodes_per_round < 1 or self.eval_episodes < 1:
             raise ValueError(f"HGDaggerConfig: demo_episodes, episodes_per_round and eval_episodes must be "
                              f"positive, rounds >= 0; got {self}")
+        if self.refit_steps is not None and self.refit_steps < 1:
+            raise ValueError(f"HGDaggerConfig: refit_steps must be positive (or None), got {self.refit_steps}")
+        if self.intervention_weight < 1:
+            raise ValueError(f"HGDaggerConfig: intervention_weight must be >= 1, got {self.intervention_weight}")
         if self.max_env_steps is not None and self.max_env_steps < 1:
             raise ValueError(f"HGDaggerConfig: max_env_steps must be positive, got {self.max_env_steps}")
 
@@ -152,22 +164,29 @@ class HGDagger:
                                "eval/return": float(np.mean(evaluation.returns or [np.nan])),
                                "hgdagger/dataset_rows": len(data_obs), "hgdagger/operator_rows": len(data_obs),
                                "hgdagger/demo_success_rate": demos.success_rate, "hgdagger/bc_loss": fit["loss"]})
+            best = evaluation.success_rate
+            refit = cfg.bc if cfg.refit_steps is None else dataclasses.replace(cfg.bc, steps=cfg.refit_steps)
             for r in range(1, cfg.rounds + 1):
                 if self._left() is not None and self._left() <= 0:
                     break
                 gated = self.collect("gate", weights, cfg.episodes_per_round)
                 keep = gated.source == SOURCE_OPERATOR  # only the operator's intervention segments
-                data_obs = np.concatenate([data_obs, gated.obs[keep]])
-                data_action = np.concatenate([data_action, gated.action[keep]])
-                weights, fit = bc_jax.fit(data_obs, data_action, cfg.bc, seed=self.seed + r)
-                evaluation = self.collect("off", weights, cfg.eval_episodes)
+                data_obs = np.concatenate([data_obs, *[gated.obs[keep]] * cfg.intervention_weight])
+                data_action = np.concatenate([data_action, *[gated.action[keep]] * cfg.intervention_weight])
+                candidate, fit = bc_jax.fit(data_obs, data_action, refit, seed=self.seed + r,
+                                            init=weights if cfg.warm_start else None)
+                evaluation = self.collect("off", candidate, cfg.eval_episodes)
+                kept = not cfg.keep_best or evaluation.success_rate >= best
+                if kept:
+                    weights, best = candidate, evaluation.success_rate
                 self._log(logger, {
                     "hgdagger/round": r, "eval/success_rate": evaluation.success_rate,
                     "eval/return": float(np.mean(evaluation.returns or [np.nan])),
                     "hgdagger/dataset_rows": len(data_obs), "hgdagger/operator_rows": int(keep.sum()),
                     "hgdagger/intervention_rate": float(np.mean(gated.rates or [np.nan])),
                     "hgdagger/interventions": float(np.mean(gated.takeovers or [np.nan])),
-                    "hgdagger/round_success_rate": gated.success_rate, "hgdagger/bc_loss": fit["loss"]})
+                    "hgdagger/round_success_rate": gated.success_rate, "hgdagger/bc_loss": fit["loss"],
+                    "hgdagger/kept": float(kept), "hgdagger/kept_success_rate": best})
         finally:
             if logger is not None:
                 logger.close()
@@ -178,4 +197,5 @@ class HGDagger:
         return {"rounds": int(last["hgdagger/round"]), "env_steps": self.env_steps,
                 "wall_s": time.perf_counter() - self.t0, "logdir": self.logdir,
                 "initial_success_rate": rates[0], "final_success_rate": evaluated[-1] if evaluated else float("nan"),
-                "dataset_rows": int(last["hgdagger/dataset_rows"]), "success_rates": rates}
+                "dataset_rows": int(last["hgdagger/dataset_rows"]), "success_rates": rates,
+                "kept_success_rate": best}

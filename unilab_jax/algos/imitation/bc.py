@@ -27,18 +27,22 @@ VAR_FLOOR = 1e-3
 
 @dataclasses.dataclass(frozen=True)
 class BCConfig:
-    """Network and fit: ``epochs`` passes over the dataset in minibatches of ``batch_size`` (AdamW)."""
+    """Network and fit: ``epochs`` passes over the dataset in minibatches of ``batch_size`` (AdamW), or, with
+    ``steps``, a fixed budget of gradient steps whatever the dataset's size (whole epochs, at least ``steps``)."""
 
     hidden: tuple[int, ...] = (256, 256)
     learning_rate: float = 1e-3
     weight_decay: float = 1.0  # decoupled (AdamW), per step: params *= 1 - learning_rate * weight_decay
     batch_size: int = 256
     epochs: int = 50
+    steps: int | None = None  # gradient steps per fit (replaces epochs; None: epochs decide)
 
     def __post_init__(self):
         if self.batch_size < 1 or self.epochs < 1 or not self.learning_rate > 0 or self.weight_decay < 0:
             raise ValueError(f"BCConfig: batch_size and epochs must be positive, learning_rate > 0 and "
                              f"weight_decay >= 0, got {self}")
+        if self.steps is not None and self.steps < 1:
+            raise ValueError(f"BCConfig: steps must be positive (or None), got {self.steps}")
 
 
 def init_params(key: Any, obs_dim: int, action_dim: int, config: BCConfig, xp: shim.Backend) -> list[dict]:

@@ -1,9 +1,11 @@
 """Behaviour cloning fitted with JAX: ``fit(dataset, config, seed) -> (weights, metrics)``.
 
-Each fit starts from fresh parameters (HG-DAgger retrains on the aggregate, Kelly et al. 2019), takes the
-dataset's observation statistics, and runs ``epochs`` shuffled passes of AdamW minibatch steps as one
-``jax.jit`` (``lax.scan`` over the minibatches of an epoch; the dataset is padded to whole minibatches by
-repeating shuffled rows). Weights come back as numpy (``bc.act`` runs them anywhere).
+A fit starts from fresh parameters with the dataset's observation statistics, or from ``init`` (earlier
+weights, fine-tuned: their parameters and their observation statistics, so the policy they were is where the
+fit starts), with a fresh optimizer, and runs ``epochs`` shuffled passes of AdamW minibatch steps (or enough
+passes for ``steps`` gradient steps), each one ``jax.jit`` (``lax.scan`` over the minibatches of an epoch;
+the dataset is padded to whole minibatches by repeating shuffled rows). Weights come back as numpy
+(``bc.act`` runs them anywhere).
 """
 
 from __future__ import annotations
@@ -45,15 +47,20 @@ def _adamw(learning_rate: float, weight_decay: float) -> optax.GradientTransform
     return optax.adamw(learning_rate, weight_decay=weight_decay)
 
 
-def fit(obs: np.ndarray, action: np.ndarray, config: bc.BCConfig, seed: int = 0) -> tuple[dict, dict]:
-    """obs [N, D], action [N, A] -> (weights ``{"actor", "obs_norm"}`` as numpy, {"loss", "rows"})."""
+def fit(obs: np.ndarray, action: np.ndarray, config: bc.BCConfig, seed: int = 0,
+        init: dict | None = None) -> tuple[dict, dict]:
+    """obs [N, D], action [N, A] -> (weights ``{"actor", "obs_norm"}`` as numpy, {"loss", "rows", "steps"});
+    ``init``: weights to fine-tune (``fit``'s), else fresh parameters."""
     obs, action = np.asarray(obs, np.float32), np.asarray(action, np.float32)
     if obs.ndim != 2 or action.ndim != 2 or len(obs) != len(action) or len(obs) == 0:
         raise ValueError(f"fit needs obs [N, D] and action [N, A] with N > 0, got {obs.shape} and {action.shape}")
     rng = np.random.default_rng(seed)
-    stats = normalizer.stats_update(normalizer.stats_init(obs.shape[1], NP), obs)
-    params = nets.convert(bc.init_params(NP.random.key(seed), obs.shape[1], action.shape[1], config, NP),
-                          shim.get("jax"))
+    if init is None:
+        stats = normalizer.stats_update(normalizer.stats_init(obs.shape[1], NP), obs)
+        actor = bc.init_params(NP.random.key(seed), obs.shape[1], action.shape[1], config, NP)
+    else:
+        stats, actor = init["obs_norm"], init["actor"]
+    params = nets.convert(actor, shim.get("jax"))
     tx = _adamw(config.learning_rate, config.weight_decay)
     opt_state = tx.init(params)
     b = min(config.batch_size, len(obs))
@@ -61,9 +68,10 @@ def fit(obs: np.ndarray, action: np.ndarray, config: bc.BCConfig, seed: int = 0)
     obs_norm = nets.convert(stats, shim.get("jax"))
     obs_j, action_j = jnp.asarray(obs), jnp.asarray(action)
     value = jnp.zeros(())
-    for _ in range(config.epochs):
+    epochs = config.epochs if config.steps is None else -(-config.steps // n_batches)
+    for _ in range(epochs):
         perm = np.concatenate([rng.permutation(len(obs)), rng.integers(0, len(obs), n_batches * b - len(obs))])
         params, opt_state, value = _epoch(params, opt_state, obs_norm, obs_j, action_j, jnp.asarray(perm), tx,
                                           n_batches)
     weights = {"actor": nets.to_numpy(params), "obs_norm": stats}
-    return weights, {"loss": float(value), "rows": len(obs)}
+    return weights, {"loss": float(value), "rows": len(obs), "steps": epochs * n_batches}
