@@ -41,6 +41,7 @@ def test_hgdagger_franka_pick_runs(tmp_path):
 @pytest.mark.parametrize("script, flag, message", [
     ("hgdagger_franka_pick.py", "--episodes_per_round=0", "HGDaggerConfig"),
     ("hgdagger_franka_pick.py", "--operator_segment=0", "segment_steps"),
+    ("hgdagger_franka_pick.py", "--refit_steps=0", "refit_steps"),
     ("hgdagger_franka_pick.py", "--speed=0", "--speed"),
     ("sacflow_franka_pick.py", "--config=flow_steps=99", "flow_steps"),
 ])
