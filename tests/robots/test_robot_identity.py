@@ -12,6 +12,7 @@ import tasks
 from unilab_jax import xp as shim
 from unilab_jax.core import normalizer
 from unilab_jax.robot_cli import ROBOT_TASK, STATE_TASK
+from unilab_jax.robots import record
 
 PEG = ("--robot=franka", "--task=peg_insertion", "--speed=50", "--reset_s=0.1", "--cameras=none", "--dense_reward")
 NP = shim.get("numpy")
@@ -50,3 +51,9 @@ def test_the_experiments_policy_cannot_tell_an_evaluation_robot_from_a_training_
             assert ev.shape[1] == train.shape[1] == tail + 2
             assert (train[:, tail:] == ev[0, tail:]).all()
             np.testing.assert_array_equal(z[:, tail:], 0.0)
+
+
+def test_recorded_demonstrations_have_the_experiments_layout():
+    """``python -m unilab_jax.robots.record`` records for the robot experiments: no slot one-hot unless asked."""
+    assert record.task_overrides(record.parse_args(["--out=x"]))["robot_identity"] is ROBOT_TASK["robot_identity"]
+    assert record.task_overrides(record.parse_args(["--out=x", "--robot_identity"]))["robot_identity"] is True
