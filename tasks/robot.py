@@ -8,7 +8,7 @@ are in-process simulated robots (``arm``, unpaced, rendering ``cameras`` if any)
 
 Observation (state-based): the robot's ``proprio`` [13], (with ``policy_state``) its ``privileged`` state,
 a one-hot of its kind (``KINDS``) and a one-hot of its place in the inventory (the robot's identity; one
-slot without an inventory). Critic observation:
+slot without an inventory; none with ``robot_identity`` off). Critic observation:
 the observation, the robot's privileged state and the episode time ``t / episode_length``.
 
 Image observation (``cameras``, e.g. ``("front",)``; ``image_size``; ``frame_stack``): beside the observation
@@ -93,6 +93,11 @@ class RobotTaskConfig:
     # Zero the rotation command (action[3:6], after any operator's): the tcp keeps the orientation it starts with,
     # as a safety pose box without rotation room would. The executed action is the transition's.
     lock_rotation: bool = False
+    # The observation holds the one-hot of the robot's inventory slot (its identity). Off: a policy that is
+    # evaluated on robots it never trained on (the robot experiments' periodic evaluation claims the robots the
+    # workers leave free) sees no slot it never saw: an unseen slot's column has variance 0 in the observation
+    # statistics, so it reaches the policy normalised to the clip bound, 10.
+    robot_identity: bool = True
 
     def image_shape(self) -> tuple[int, ...]:
         """``(S, S, 3 x cameras x frame_stack)`` of the image observation; () without cameras."""
@@ -158,7 +163,7 @@ class RobotTask(base.Task):
             raise
         spec = self.robots[0].spec
         self.robot_spec = spec
-        self.n_ids = max(len(config.robots), 1)
+        self.n_ids = max(len(config.robots), 1) if config.robot_identity else 0
         self.length = min(config.episode_length, spec.episode_length)
         obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids + (spec.privileged_dim if config.policy_state else 0)
         image_shape = config.image_shape()
@@ -264,7 +269,8 @@ class RobotTask(base.Task):
         kind = np.zeros(len(KINDS), np.float32)
         kind[KINDS.index(self.robots[i].spec.kind)] = 1.0
         ident = np.zeros(self.n_ids, np.float32)
-        ident[self.slots[i]] = 1.0
+        if self.n_ids:
+            ident[self.slots[i]] = 1.0
         state = [robot_obs["privileged"].astype(np.float32)] if self.config.policy_state else []
         obs = np.concatenate([robot_obs["proprio"].astype(np.float32), *state, kind, ident])
         t = np.array([self.steps[i] / self.length], np.float32)

@@ -34,8 +34,8 @@ def test_record_peg_demos_through_servers(tmp_path, capsys):
         np.testing.assert_array_equal(obs[1:], nxt[:-1])  # a chain of steps of one robot
         assert rows["terminated"][ep][-1] and not rows["terminated"][ep][:-1].any()
         assert np.abs(rows["action"][ep]).max() <= 1.0
-    # 13 proprio + 2 kinds + 2 inventory places: the layout a run on the same two robots has
-    assert rows["obs"].shape[1] == 17
+    # 13 proprio + 2 kinds, no inventory place: the layout the robot experiments have (robot_cli.ROBOT_TASK)
+    assert rows["obs"].shape[1] == 15
     loaded = load_prior(out, {k: ((int(rows[k].shape[1]),) if rows[k].ndim > 1 else (), rows[k].dtype)
                               for k in REPLAY_FIELDS})
     assert set(loaded) == set(REPLAY_FIELDS)

@@ -6,8 +6,9 @@
 
 ``--robots``: an inventory (``robots.inventory``: ``sim:NAME`` servers are started here at ``--speed``,
 ``tcp://HOST:PORT`` ones are already running). The robots run the task ``robots.robot_*`` as training
-does (``tasks.robot``: same observations, same one-hot of each robot's place in the inventory), so the
-transitions fit a training run on the same inventory. A ``TeleopDevice`` (``robots.teleop``) drives
+does (``tasks.robot``: same observations; the one-hot of each robot's place in the inventory only with
+``--robot_identity``, as the robot experiments leave it out), so the transitions fit a training run on the same
+inventory. A ``TeleopDevice`` (``robots.teleop``) drives
 each robot: the scripted expert by default (robots in parallel), a keyboard (one robot).
 
 With ``--cameras`` the task has its image observation (``tasks.robot``; ``sim:`` servers render those cameras
@@ -146,6 +147,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    "empty: none): record for runs with the same --task_config=cameras")
     p.add_argument("--image_size", type=int, default=64, help="pixels per side of each camera frame (with --cameras)")
     p.add_argument("--frame_stack", type=int, default=1, help="frames per camera in the image (with --cameras)")
+    p.add_argument("--robot_identity", action="store_true", help="the inventory-slot one-hot in the observation: "
+                   "record for runs with --task_config=robot_identity=true (the robot experiments leave it out)")
     return p.parse_args(argv)
 
 
@@ -155,7 +158,7 @@ def task_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
     cameras = tuple(c.strip() for c in args.cameras.split(",") if c.strip())
     overrides = {"policy_state": args.policy_state, "cameras": cameras, "image_size": args.image_size,
-                 "frame_stack": args.frame_stack}
+                 "frame_stack": args.frame_stack, "robot_identity": args.robot_identity}
     RobotTaskConfig(**overrides)
     return overrides
 
