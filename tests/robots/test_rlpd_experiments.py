@@ -48,9 +48,11 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     # robot time at speed 1: 2000 steps at 10 Hz plus the demonstrations' own steps
     assert summary["robot_s"] == pytest.approx(200.0 + len(rows["reward"]) / 10.0, abs=0.2)
     assert not (logdir / "demos.partial").exists()
-    # these demonstrations hold one robot's inventory one-hot: a run on two robots refuses them
+    # these demonstrations hold no robot-identity one-hot (the robot experiments leave it out): a run that asks
+    # for the one-hot on two robots refuses them before it trains
     out = _script("rlpd_franka_peg.py", "--robots=sim:franka_emika_panda,sim:franka_emika_panda",
-                  f"--demos={logdir / 'demos'}", f"--logdir={tmp_path / 'other'}", timeout=200)
+                  "--task_config=robot_identity=true", f"--demos={logdir / 'demos'}",
+                  f"--logdir={tmp_path / 'other'}", timeout=200)
     assert out.returncode == 2 and "this run needs" in out.stderr and "Traceback" not in out.stderr, out.stderr[-2000:]
 
 
