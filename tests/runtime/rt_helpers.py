@@ -119,9 +119,21 @@ def slot_producer(handle, worker: int, n_slots: int, timeout: float) -> None:
         buf.close()
 
 
-# ---- replay rings: every field of a row holds the row's value (worker * 100_000 + global index) --------
+# ---- replay rings: every field of a row holds the row's value (worker * ROW_STRIDE + global index) -----
+# float32 fields hold the value exactly below 2**24, which workers 0-2 stay under; a racing writer writes
+# ~10^5 rows/s, so it stops short of the stride (an index past it would read as the next worker's row).
+ROW_STRIDE = 4_000_000
+
+
 def replay_value(worker: int, index: np.ndarray) -> np.ndarray:
-    return worker * 100_000 + np.asarray(index, dtype=np.int64)
+    index = np.asarray(index, dtype=np.int64)
+    if index.size and index.max() >= ROW_STRIDE:
+        raise ValueError(f"row index {index.max()} does not fit the pattern's stride {ROW_STRIDE}")
+    return worker * ROW_STRIDE + index
+
+
+def replay_worker_and_index(value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return value // ROW_STRIDE, value % ROW_STRIDE
 
 
 def write_replay_step(buf: ReplayBuffer, worker: int) -> None:
@@ -171,11 +183,15 @@ def racing_replay_writer(buf: ReplayBuffer, worker: int = 0, laps: int = 2):
 
 
 def replay_writer(handle, worker: int, stop, timeout: float) -> None:
-    """Writes pattern steps into region ``worker`` as fast as it can until ``stop`` is set."""
+    """Writes pattern steps into region ``worker`` as fast as it can until ``stop`` is set (idles once its
+    row indices would leave the pattern's stride)."""
     buf = ReplayBuffer.attach(handle)
     deadline = time.monotonic() + timeout
     try:
         while not stop.is_set() and time.monotonic() < deadline:
+            if buf.count(worker) + buf.envs_per_worker > ROW_STRIDE:
+                stop.wait(deadline - time.monotonic())
+                break
             write_replay_step(buf, worker)
     finally:
         buf.close()

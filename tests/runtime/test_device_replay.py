@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 import rt_helpers
-from rt_helpers import replay_rows_ok, replay_value, write_replay_step
+from rt_helpers import replay_rows_ok, replay_value, replay_worker_and_index, write_replay_step
 
 from unilab_jax.runtime.buffers import ReplayBuffer
 
@@ -95,7 +95,7 @@ def test_mirror_races_a_writer_process():
                 hi = mirror.hi.copy()
                 batch = _gathered(mirror, 512, rng)
                 torn += int((~replay_rows_ok(batch)).sum())
-                worker, index = batch["b"] // 100_000, batch["b"] % 100_000
+                worker, index = replay_worker_and_index(batch["b"])
                 assert (index < hi[worker]).all() and (index >= hi[worker] - buf.capacity).all()
                 calls += 1
         assert calls >= 20 and torn == 0, f"{torn} torn rows in {calls} batches"

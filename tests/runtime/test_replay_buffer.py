@@ -7,17 +7,13 @@ import time
 import numpy as np
 import pytest
 import rt_helpers
-from rt_helpers import replay_rows_ok, replay_value, write_replay_step
+from rt_helpers import replay_rows_ok, replay_value, replay_worker_and_index, write_replay_step
 
 from unilab_jax.runtime.buffers import ReplayBuffer
 
 pytestmark = pytest.mark.timeout(120)
 
 FIELDS = rt_helpers.PATTERN_FIELDS  # float32 [64], int64, int32 [3], bool, float32 [17]; "b" holds the value
-
-
-def _worker_and_index(value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return value // 100_000, value % 100_000
 
 
 def test_capacity_is_whole_steps_and_at_least_two_and_empty_rings_refuse_to_sample():
@@ -48,7 +44,7 @@ def test_sample_is_uniform_over_the_valid_rows_and_in_random_order():
         expect = n / valid.size
         assert np.abs(counts - expect).max() < 5 * np.sqrt(expect)
         # Draw order, not grouped by worker: consecutive rows share a worker with probability sum(p_w^2).
-        worker, _ = _worker_and_index(batch["b"])
+        worker, _ = replay_worker_and_index(batch["b"])
         p = np.array([8, 12, 12]) / 32
         assert abs(np.mean(worker[1:] == worker[:-1]) - np.sum(p**2)) < 0.01
         assert buf.resampled == 0
@@ -105,7 +101,7 @@ def test_rows_the_writer_reaches_during_the_copy_are_redrawn():
         batch = buf.sample(4000, np.random.default_rng(1))
         assert buf._flat.steps == 0  # the writer did run mid-copy
         assert replay_rows_ok(batch).all()  # no torn row: a from the old lap, b from the new one
-        worker, index = _worker_and_index(batch["b"])
+        worker, index = replay_worker_and_index(batch["b"])
         # Redrawn: every draw of worker 0 below c1 + M - C = 24 + 4 - 16, rows 4-11 (8 of 24 rows: ~1333).
         assert 1150 < buf.resampled < 1520
         assert set(index[worker == 0]) == set(range(12, 24))  # 12-15 kept, 16-23 from the redraw
