@@ -13,6 +13,7 @@ Generic overrides: ``--config key=value`` (algorithm hyperparameters) and ``--ta
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sys
 import time
@@ -285,9 +286,10 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
             print(f"error: {e}", file=sys.stderr)
             sys.exit(2)
         train(validated)
-        from unilab_jax.trainer import learner_busy
+        from unilab_jax.trainer import learner_busy, stopped_by_signal
 
-        if learner_busy():  # a stopped run left a compile or an update running: do not wait for it
+        if learner_busy() or stopped_by_signal():  # a stopped run: saved and closed, leave without teardown
+            logging.shutdown()
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(0)

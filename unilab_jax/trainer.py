@@ -10,7 +10,9 @@ own calls (the update, whose first call compiles, and the weight download) run i
 (:class:`LearnerThread`), so a stop never waits long for them: an update in flight gets
 ``_STOP_GRACE_S`` to finish (a steady GPU update takes milliseconds), then it is abandoned, the state
 saved is the one of the last completed update, and the process leaves the abandoned call behind
-(``learner_busy()``; the CLI then exits without waiting for it). Updates donate their input only on
+(``learner_busy()``). After a stopped run the CLI exits without the interpreter's teardown: it would wait
+for an abandoned call, and once (a fresh-clone CI) it aborted (exit -6) in third-party teardown after a
+complete summary; everything the run owns is saved and closed by then. Updates donate their input only on
 accelerators, where the one call that can outlast the grace is the first compile, before any
 donation; on the CPU, where an update can take minutes, nothing is donated.
 """
@@ -413,6 +415,7 @@ def stop_on_signals(stop: threading.Event) -> Callable[[], None]:
         return lambda: None
 
     def handler(signum: int, frame: Any) -> None:
+        _SIGNALLED.set()
         if signum == signal.SIGINT and stop.is_set():
             raise KeyboardInterrupt
         stop.set()
@@ -422,6 +425,12 @@ def stop_on_signals(stop: threading.Event) -> Callable[[], None]:
 
 
 _LEARNER_THREADS: weakref.WeakSet = weakref.WeakSet()
+_SIGNALLED = threading.Event()  # a run's SIGINT/SIGTERM handler ran in this process
+
+
+def stopped_by_signal() -> bool:
+    """Whether a run in this process was stopped by SIGINT or SIGTERM."""
+    return _SIGNALLED.is_set()
 
 
 def learner_busy() -> bool:
