@@ -184,7 +184,7 @@ def rollout_frames(logdir: str, *, checkpoint: int | None = None, steps: int = 2
                    seed: int = 0) -> tuple[np.ndarray, dict[str, Any]]:
     """Frames of one episode of the run's deterministic policy (at most ``steps`` control steps, one frame
     before each) and its stats (see :func:`run_policy`; ``stats["fps"]`` plays it in real time)."""
-    run = saved_run.load(logdir, checkpoint)
+    run = saved_run.load(logdir, checkpoint, task_overrides)
     return run_policy(run, episodes=1, max_steps=steps, render=(width, height), task_overrides=task_overrides,
                       seed=seed)
 
@@ -292,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--episodes, --steps, --width and --height must be positive")
     try:
         overrides = parse_overrides(args.task_config)
-        run = saved_run.load(args.logdir, args.checkpoint)
+        run = saved_run.load(args.logdir, args.checkpoint, overrides)
         frames, stats = run_policy(run, episodes=args.episodes, max_steps=args.steps,
                                    render=(args.width, args.height) if args.video else None,
                                    task_overrides=overrides, seed=args.seed)

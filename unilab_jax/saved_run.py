@@ -50,9 +50,11 @@ class SavedRun:
         return tasks.make(self.task, num_envs, seed=seed, overrides={**self.task_overrides, **dict(overrides or {})})
 
 
-def load(logdir: str, checkpoint: int | None = None) -> SavedRun:
+def load(logdir: str, checkpoint: int | None = None, task_overrides: Mapping[str, Any] | None = None) -> SavedRun:
     """The policy of checkpoint ``checkpoint`` (env step; default the latest) of the run in ``logdir``.
 
+    ``task_overrides`` go on top of the run's own for the task built to read the spec (a robot run's servers
+    are gone after it: ``robots=()`` plays it on in-process robots).
     Raises FileNotFoundError (no such folder, no checkpoint, no such step: the message lists the steps)."""
     import tasks
 
@@ -72,7 +74,8 @@ def load(logdir: str, checkpoint: int | None = None) -> SavedRun:
         config = apply_overrides(module.Config(), meta["config"])
         run = meta["run"]
         overrides = dict(meta.get("task_overrides", {}))
-        probe = tasks.make(meta["task"], num_envs=1, seed=int(run["seed"]), overrides=overrides)
+        probe = tasks.make(meta["task"], num_envs=1, seed=int(run["seed"]),
+                           overrides={**overrides, **dict(task_overrides or {})})
         spec = probe.spec
         probe.close()
         xp = shim.get(run["platform"])

@@ -96,3 +96,13 @@ def test_rlpd_improves_on_its_first_evaluation(tmp_path):
     assert len(evals) >= 3 and evals[0][0] <= 400, evals
     print("eval returns:", evals)
     assert evals[-1][1] > evals[0][1] + 0.1, evals
+    # The run's robot servers are gone with it: playing its policy needs other robots, e.g. in-process ones.
+    play = [sys.executable, "-m", "unilab_jax.play", f"--logdir={logdir}", "--episodes=2"]
+    gone = subprocess.run([*play, "--task_config=connect_timeout_s=1"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+    assert gone.returncode == 2 and "robots wanted, 0 free" in gone.stderr, gone.stderr[-2000:]
+    local = subprocess.run([*play, "--task_config=robots=()", "--task_config=dense_reward=true"], cwd=ROOT,
+                           capture_output=True, text=True, timeout=120)
+    assert local.returncode == 0, local.stderr[-2000:]
+    stats = json.loads(local.stdout)
+    assert stats["episodes"] == 2 and 0.0 <= stats["success_rate"] <= 1.0 and np.isfinite(stats["return"])
