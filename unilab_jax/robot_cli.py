@@ -149,7 +149,10 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     if FLAGS.serial:
         raise FlagError("--serial: robot tasks step robot servers from worker processes")
     run, module, config, task_overrides = build_run(algo, task, recipe, task_recipe, default_total_steps)
-    image_shape = apply_overrides(tasks.default_config(run.task), task_overrides).image_shape()
+    if not run.task.startswith("robot_"):
+        raise FlagError(f"--task={run.task}: this experiment drives robots (robot_pick_place, robot_peg_insertion)")
+    task_config = apply_overrides(tasks.default_config(run.task), task_overrides)
+    image_shape = task_config.image_shape()
     if image_shape:  # the algorithm learns from images of this size (a learner checks it again when it is built)
         from unilab_jax.algos.offpolicy.image_obs import check_algo
 
@@ -160,8 +163,6 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     if image_shape and "replay_capacity" not in parse_overrides(FLAGS.config):
         # images make a transition ~100x larger: the ring holds the run's steps at most (all of them, once)
         config = dataclasses.replace(config, replay_capacity=min(config.replay_capacity, run.total_steps))
-    if not run.task.startswith("robot_"):
-        raise FlagError(f"--task={run.task}: this experiment drives robots (robot_pick_place, robot_peg_insertion)")
     if "robots" in task_overrides:
         raise FlagError("--task_config=robots=...: give the robots with --robots")
     prior = hasattr(config, "prior_dir")
@@ -172,7 +173,7 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                         "python -m unilab_jax.robots.record)")
     if prior and FLAGS.num_demos < 1:
         raise FlagError(f"--num_demos must be positive, got {FLAGS.num_demos}")
-    return entries, (run, module, config, task_overrides)
+    return entries, (run, module, config, task_overrides), task_config
 
 
 def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tuple[str, float]:
@@ -195,21 +196,18 @@ def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tu
 
 
 def _train(validated: tuple, dense_reward: bool) -> None:
-    import tasks
-    from unilab_jax.config import apply_overrides
     from unilab_jax.robots import inventory
     from unilab_jax.runtime.prior import PriorDataError
     from unilab_jax.trainer import Trainer
 
-    entries, (run, module, config, task_overrides) = validated
+    entries, (run, module, config, task_overrides), task_config = validated
     robot_task = run.task.removeprefix("robot_")
     dense = dense_reward if FLAGS.dense_reward is None else FLAGS.dense_reward
-    cameras, image_size = task_overrides.get("cameras", ()), task_overrides.get("image_size", 64)
-    with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense, cameras=cameras,
-                             image_size=image_size) as inv:
+    with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense,
+                             cameras=task_config.cameras, image_size=task_config.image_size) as inv:
         found = report_robots(inv.addresses, robot_task)
-        if cameras:
-            _check_cameras(found, apply_overrides(tasks.default_config(run.task), task_overrides), config)
+        if task_config.cameras:
+            _check_cameras(found, task_config, config)
         demo_s = 0.0
         if hasattr(config, "prior_dir"):
             prior_dir, demo_s = _demos(inv.addresses, run, task_overrides)

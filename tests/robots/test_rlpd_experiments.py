@@ -59,6 +59,7 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
 @pytest.mark.parametrize("script,args,message", [
     ("sac_franka_peg.py", ["--demos=/nonexistent"], "learns without prior data"),
     ("rlpd_franka_peg.py", ["--demos=/nonexistent"], "no replay store there"),
+    ("rlpd_franka_peg.py", ["--task=cartpole_balance"], "this experiment drives robots"),
     ("rlpd_franka_peg.py", ["--eval_every=100"], "evaluation needs 1 more"),
     ("rlpd_franka_peg.py", ["--config", "prior_fraction=1.0"], "prior_fraction must be in [0, 1)"),
     ("rlpd_franka_peg.py", ["--task_config=image_size=16", "--config", "encoder_channels=(8, 8, 8, 8)", "--config",
