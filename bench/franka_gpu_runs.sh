@@ -1,0 +1,33 @@
+# The README's Franka GPU commands (RLPD / SAC, peg insertion / pick-and-place) as named jobs run side by side on
+# one GPU machine, each followed by 40-episode evaluations of its last three checkpoints; logs, compacted metrics
+# (bench/compact_metrics.py) and evaluations go to $OUT. On the GPU machine, after bench/device_setup.sh:
+#   JOB_TIMEOUT=480 bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
+# JOB = rlpd_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | rlpd_peg_images_sN; SPEED (default 10) sets --speed.
+# Five runs at once share the GPU at ~75 env steps/s each, two at ~186 (H100 + 16 cores).
+R=$(printf 'sim:franka_emika_panda,%.0s' $(seq 12)); R=${R%,}
+F="--robots=$R --num_workers=8 --eval_envs=4 --eval_every=3000 --speed=${SPEED:-10} --total_steps=36000 --config utd=20 --config updates_per_call=64 --config publish_every=64"
+P="--dense_reward --task_config=lock_rotation=true --config init_alpha=0.01 --config utd=10"
+S="--observation=state"
+I="--task_config=image_size=64 --config encoder_channels=(32,32,32,32) --config encoder_strides=(2,1,1,1) --config feature_dim=50"
+export XLA_PYTHON_CLIENT_PREALLOCATE=false
+job() {
+  local name=$1 s=${1##*_s}; local kind=${name%_s*}; local a
+  case $kind in
+    rlpd_peg) a="experiments/rlpd_franka_peg.py $F $P $S --config actor_every=2";;
+    sac_peg) a="experiments/sac_franka_peg.py $F $P $S";;
+    rlpd_pick) a="experiments/rlpd_franka_pick.py $F $S --config actor_every=20";;
+    sac_pick) a="experiments/sac_franka_pick.py $F --nodense_reward $S --config actor_hidden=(128,128) --config critic_hidden=(128,128)";;
+    rlpd_peg_images) a="experiments/rlpd_franka_peg.py $F $P $I ${IMG_EXTRA:-} --config actor_every=2";;
+  esac
+  local d=runs/$name
+  timeout ${JOB_TIMEOUT:-540} python3 $a --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log
+  python3 bench/compact_metrics.py $d/metrics.jsonl $OUT/$name.jsonl.gz >> $OUT/$name.log 2>&1
+  cp $d/summary.json $OUT/${name}_summary.json 2>/dev/null
+  local dr=""; case $kind in *peg*) dr="--task_config=dense_reward=true";; esac
+  for c in $(ls $d/checkpoints 2>/dev/null | sort -n | tail -3); do
+    JAX_PLATFORMS=cpu timeout 120 python3 -m unilab_jax.play --logdir=$d --checkpoint=$c --episodes=40 --seed=1 --task_config='robots=()' $dr > $OUT/${name}_eval40_$c.json 2>> $OUT/$name.log &
+  done; wait
+}
+for j in "$@"; do job $j & done
+while sleep 30; do n=$(jobs -r | wc -l); [ $n = 0 ] && break; for j in "$@"; do tail -c 200 $OUT/$j.log | tr '\n' ' ' | tail -c 110; echo; done; done
+wait
