@@ -160,6 +160,32 @@ def test_async_versions_are_monotone_and_never_ahead():
         pool.close()
 
 
+def test_async_workers_act_with_whole_large_weights():
+    """Weights of PREFETCH_MIN_BYTES (a worker process copies them in its prefetch thread): every action is
+    the one of the version stamped on its row (w = version, a near-zero std), published while collecting."""
+    from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
+
+    def big(version: int) -> dict:
+        return {"w": np.full((1, 5), float(version), np.float32), "log_std": np.full((1,), -30.0, np.float32),
+                "ballast": np.full(PREFETCH_MIN_BYTES // 4, float(version), np.float32)}
+
+    pool = _pool(algo="toy_algo_async", weight_template=big(0)).start()
+    try:
+        for v in range(1, 6):
+            pool.publish(big(v), v)
+            deadline = time.monotonic() + 30
+            while True:  # the prefetch thread hands a version over a few ms after its publish
+                batch, _ = pool.collect(n_slots=2, timeout=60)
+                stamped = batch["policy_version"].astype(np.float32)
+                expected = stamped[..., None] * batch["obs"].sum(-1, keepdims=True)
+                np.testing.assert_allclose(batch["action"], expected, rtol=1e-5, atol=1e-5)
+                if (batch["policy_version"] == v).any():
+                    break
+                assert time.monotonic() < deadline, f"version {v} never reached the workers"
+    finally:
+        pool.close()
+
+
 @pytest.mark.parametrize("serial", [True, False], ids=["serial", "processes"])
 def test_replay_sampling(serial):
     pool = _pool(algo="toy_algo_replay", serial=serial, replay_capacity=30).start()

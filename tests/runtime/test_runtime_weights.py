@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import multiprocessing as mp
+import threading
+import time
 from typing import NamedTuple
 
 import numpy as np
@@ -11,7 +13,7 @@ import rt_helpers
 
 from unilab_jax.runtime.ring import RingTimeout
 from unilab_jax.runtime.shm import SharedArrays
-from unilab_jax.runtime.weights import WeightChannel, WeightReader
+from unilab_jax.runtime.weights import WeightChannel, WeightPrefetcher, WeightReader
 
 
 class Stats(NamedTuple):
@@ -92,6 +94,55 @@ def test_reader_refuses_a_corrupted_buffer_and_keeps_its_previous_tree():
     finally:
         reader.close()
         ch.close()
+
+
+def _leaves_equal(tree, value: float) -> bool:
+    a = tree["actor"]
+    return all(bool((x == value).all()) for x in (a[0]["w"], a[0]["b"], a[1]["w"], a[1]["b"], tree["log_std"],
+                                                   tree["obs_norm"]["mean"], tree["obs_norm"]["count"]))
+
+
+def test_prefetcher_hands_over_whole_versions_and_never_touches_the_held_copy():
+    """A writer thread publishes value == version trees nonstop; the copy the caller holds must stay whole
+    until it takes a newer one (the prefetch thread may only reuse the buffer of the copy taken before)."""
+    ch = WeightChannel(rt_helpers.weight_tree(0.0))
+    reader = WeightReader(ch.handle)
+    with pytest.raises(ValueError, match="first read"):
+        WeightPrefetcher(reader)
+    ch.publish(rt_helpers.weight_tree(0.0), 0)
+    tree, version = reader.read()
+    prefetch = WeightPrefetcher(reader, interval_s=0.0002)
+    stop = threading.Event()
+
+    def write():
+        v = 1
+        while not stop.is_set():
+            ch.publish(rt_helpers.weight_tree(float(v)), v)
+            v += 1
+
+    writer = threading.Thread(target=write)
+    writer.start()
+    taken = []
+    try:
+        deadline = time.monotonic() + 60
+        while len(taken) < 100 and time.monotonic() < deadline:
+            assert _leaves_equal(tree, float(version)), f"the held copy of version {version} changed"
+            got = prefetch.take()
+            if got is not None:
+                assert got[1] > version
+                tree, version = got
+                assert _leaves_equal(tree, float(version)), f"version {version} handed over torn"
+                taken.append(version)
+            time.sleep(0.0005)
+    finally:
+        stop.set()
+        writer.join()
+        prefetch.close()
+    assert len(taken) == 100, f"only {len(taken)} versions handed over in 60 s"
+    assert taken[-1] - taken[0] > len(taken), "the writer hardly raced the prefetch thread"
+    assert not prefetch._thread.is_alive()
+    reader.close()
+    ch.close()
 
 
 def test_weights_cross_process_stress_never_torn():

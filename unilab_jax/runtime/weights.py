@@ -26,11 +26,18 @@ aligned int64 words (see :mod:`unilab_jax.runtime.ring` for the memory-model arg
 
 Readers copy into one of two private buffers and swap only when a copy is accepted, so the tree
 they handed out before stays valid if a later read fails.
+
+Large weights (a VLA-sized policy: hundreds of MB, tens of ms per copy and checksum) would stall a
+worker that reads them between two robot steps. :class:`WeightPrefetcher` reads new versions in a
+background thread instead (numpy's copy and reductions release the GIL, and the worker's thread mostly
+waits on its robots) and hands a finished copy over at the worker's next step; it never starts the next
+copy before the worker has taken the last one, so the two private buffers are enough.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from typing import Any
 
@@ -40,7 +47,7 @@ from unilab_jax import xp as shim
 from unilab_jax.runtime.ring import checksum, fence, wait_for
 from unilab_jax.runtime.shm import ALIGN, SharedArrays, ShmHandle
 
-__all__ = ["WeightChannel", "WeightChannelHandle", "WeightReader"]
+__all__ = ["WeightChannel", "WeightChannelHandle", "WeightPrefetcher", "WeightReader"]
 
 # header words: [active, -, -, -, -, -, -, -, v0, c0, -, -, -, -, -, -, v1, c1, ...]
 _ACTIVE = 0
@@ -221,3 +228,48 @@ class WeightReader:
     def close(self) -> None:
         if self._own:
             self.seg.close()
+
+
+class WeightPrefetcher:
+    """Reads a :class:`WeightReader`'s new versions in a background thread; :meth:`take` hands one over.
+
+    Owns the reader while it runs: the caller uses :meth:`take` (and the read-only ``latest_version``)
+    only. A copy handed over stays valid until the next :meth:`take` returns a newer one: the thread
+    waits for each copy to be taken before it reads again, into the buffer of the copy taken before.
+    """
+
+    def __init__(self, reader: WeightReader, interval_s: float = 0.002):
+        if reader.tree is None:
+            raise ValueError("start the prefetcher after the first read (the caller holds that copy)")
+        self.reader = reader
+        self.interval_s = float(interval_s)
+        self._ready: tuple[Any, int] | None = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="weight-prefetch", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            with self._lock:
+                if self._ready is not None:
+                    continue
+            got = self.reader.poll()
+            if got is not None:
+                with self._lock:
+                    self._ready = got
+
+    def take(self) -> tuple[Any, int] | None:
+        """The newest finished copy (tree, version) not yet taken, or None."""
+        with self._lock:
+            got, self._ready = self._ready, None
+        return got
+
+    @property
+    def retries(self) -> int:
+        return self.reader.retries
+
+    def close(self) -> None:
+        """Stops the thread (the reader stays open: its owner closes it)."""
+        self._stop.set()
+        self._thread.join()

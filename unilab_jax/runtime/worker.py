@@ -5,7 +5,9 @@ learner process; both run the same code. Per *chunk* (``T`` control steps) it
 
 1. gets weights through the weight channel: in ``"lockstep"`` mode it waits until the published
    version is newer than the one that produced its previous chunk; in ``"async"`` mode it never
-   waits (after the very first publish) and picks up newer weights before every step;
+   waits (after the very first publish) and picks up newer weights before every step (a worker process
+   whose weights are large, >= ``PREFETCH_MIN_BYTES``, copies them in a background thread meanwhile:
+   :class:`~unilab_jax.runtime.weights.WeightPrefetcher`);
 2. in trajectory mode takes a free slot (waiting for one if the learner holds them all);
 3. steps its ``M`` envs ``T`` times: noise from its own ``np.random.Generator``, ``act`` (numpy),
    ``task.step``, and writes every field of the transition straight into the slot (or the replay
@@ -53,9 +55,14 @@ import numpy as np
 from unilab_jax.runtime.buffers import ReplayBuffer, TrajectoryBuffer
 from unilab_jax.runtime.ring import fence
 from unilab_jax.runtime.shm import SharedArrays, ShmHandle
-from unilab_jax.runtime.weights import WeightReader
+from unilab_jax.runtime.weights import WeightPrefetcher, WeightReader
 
 __all__ = ["Worker", "WorkerArgs", "control_layout", "worker_main", "Stopped"]
+
+# Async worker processes read weights of at least this size in a background thread: a copy plus checksum
+# runs at ~6-10 GB/s, so from here on a read between two steps would take milliseconds of the control loop
+# (256 MB: ~40 ms on the 2-core dev VM, a 10 Hz robot's period is 100 ms).
+PREFETCH_MIN_BYTES = 8 << 20
 
 # Per-worker int64 words of the control segment ("worker" [W, 16]). RESUME_VERSION is written by the
 # pool before it respawns a lockstep worker: the version of the last chunk that worker published.
@@ -154,6 +161,8 @@ class Worker:
                                if dt.kind == "f" and n != "episode_return" and int(np.prod(shape)) > 0]
         self._nonfinite_logged = False
         self.weights = WeightReader(args.weights_handle)
+        self._prefetch: WeightPrefetcher | None = None
+        self._may_prefetch = False  # process mode sets it (run); serial workers read in the learner's turn
         self.task = tasks.make(args.task_name, args.envs_per_worker, args.worker_seed, dict(args.task_overrides))
         self.task.keepalive = self._keepalive
         self._interrupted = tasks.base.StepInterrupted
@@ -213,7 +222,7 @@ class Worker:
         """Loads the weights for a new chunk; False if (non-blocking) they are not there yet."""
         need = self.chunk_version + 1 if self.args.sync == "lockstep" else 0
         if self.version >= need and self.args.sync == "async":
-            got = self.weights.poll()
+            got = self._poll_async()
         elif block:
             got = self.weights.read(min_version=need, timeout=self.args.wait_timeout, check=self._check)
         else:
@@ -224,11 +233,18 @@ class Worker:
             self._set_weights(*got)
         return self.version >= need
 
+    def _poll_async(self) -> tuple[Any, int] | None:
+        """Async mode: newer weights if a copy is ready (from the prefetch thread once it runs)."""
+        return self._prefetch.take() if self._prefetch is not None else self.weights.poll()
+
     def _set_weights(self, tree: Any, version: int) -> None:
         self.params, self.version = tree, version
         self._words[W_READS] += 1
         self._words[W_RETRIES] = self.weights.retries
         self._words[VERSION] = version
+        if (self._may_prefetch and self._prefetch is None and self.args.sync == "async"
+                and self.weights.handle.nbytes >= PREFETCH_MIN_BYTES):
+            self._prefetch = WeightPrefetcher(self.weights)
 
     # ---- one env step -------------------------------------------------------------------------
     def _step(self, out: dict[str, np.ndarray]) -> bool:
@@ -236,7 +252,7 @@ class Worker:
         (nothing valid written) when the task interrupted the step."""
         self._check()
         if self.args.sync == "async":
-            got = self.weights.poll()
+            got = self._poll_async()
             if got is not None:
                 self._set_weights(*got)
         t0 = time.perf_counter()
@@ -435,10 +451,13 @@ class Worker:
 
     def run(self) -> None:
         """Process mode: chunks until stopped."""
+        self._may_prefetch = True
         while True:
             self.run_chunk(block=True)
 
     def close(self) -> None:
+        if self._prefetch is not None:
+            self._prefetch.close()
         for obj in (self.traj, self.replay, self.weights):
             if obj is not None:
                 obj.close()
