@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Makes a compressed GPU-machine bundle in .devr/ (git-ignored): the py3.12 wheels of ../shared/device/prepare.sh
 # plus pyzmq/msgpack/tensorboardX and PyOpenGL (MuJoCo's EGL renderer for the robots' cameras), and each robot
-# of ../shared/robots as its own .tar.xz (franka 33 -> 3 MB, unitree_g1 18 -> 6 MB), so every robot fits the device's 64 MiB transfer beside the checkout. Carry ".devr";
+# of ../shared/robots as its own .tar.xz (franka 33 -> 3 MB, unitree_g1 18 -> 6 MB), so every robot fits the
+# device's 64 MiB transfer beside the checkout. Carry ".devr";
 # bench/device_setup.sh unpacks the robots a command names:  ROBOTS="franka_emika_panda" source bench/device_setup.sh
 set -eu
 cd "$(git rev-parse --show-toplevel)"

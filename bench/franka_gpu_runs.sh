@@ -17,7 +17,7 @@ job() {
     sac_peg) a="experiments/sac_franka_peg.py $F $P $S";;
     rlpd_pick) a="experiments/rlpd_franka_pick.py $F $S --config actor_every=20";;
     sac_pick) a="experiments/sac_franka_pick.py $F --nodense_reward $S --config actor_hidden=(128,128) --config critic_hidden=(128,128)";;
-    rlpd_peg_images) a="experiments/rlpd_franka_peg.py $F $P $I ${IMG_EXTRA:-} --config actor_every=2";;
+    rlpd_peg_images) a="experiments/rlpd_franka_peg.py $F $P $I --config actor_every=2";;
   esac
   local d=runs/$name
   timeout ${JOB_TIMEOUT:-540} python3 $a --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log

@@ -138,11 +138,11 @@ def test_prefetcher_hands_over_whole_versions_and_never_touches_the_held_copy():
         stop.set()
         writer.join()
         prefetch.close()
+        reader.close()
+        ch.close()
     assert len(taken) == 100, f"only {len(taken)} versions handed over in 60 s"
     assert taken[-1] - taken[0] > len(taken), "the writer hardly raced the prefetch thread"
     assert not prefetch._thread.is_alive()
-    reader.close()
-    ch.close()
 
 
 def test_weights_cross_process_stress_never_torn():

@@ -265,10 +265,6 @@ class WeightPrefetcher:
             got, self._ready = self._ready, None
         return got
 
-    @property
-    def retries(self) -> int:
-        return self.reader.retries
-
     def close(self) -> None:
         """Stops the thread (the reader stays open: its owner closes it)."""
         self._stop.set()
