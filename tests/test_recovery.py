@@ -5,6 +5,8 @@
 * ``kill -9`` of a learner (``experiments/sac_cartpole.py``) at a random moment after a checkpoint;
   ``--resume`` finishes, its step counter and buffer size go on from the checkpoint, and the
   killed run's shared memory is gone.
+* A diverging learner (non-finite losses) stops the run with ``LearningDiverged``, its state is not
+  checkpointed, and the summary says why the run ended.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from unilab_jax.checkpoint import Checkpointer
 from unilab_jax.config import apply_overrides
 from unilab_jax.runtime.replay_store import ReplayStore
 from unilab_jax.runtime.shm import cleanup_stale, list_segments
-from unilab_jax.trainer import RunConfig, Trainer
+from unilab_jax.trainer import LearningDiverged, RunConfig, Trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY_SAC = {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32, "updates_per_call": 2, "publish_every": 4,
@@ -147,3 +149,24 @@ def test_replay_dir_is_refused_for_trajectory_algorithms(tmp_path):
                           f"--replay_dir={tmp_path / 'r'}", f"--logdir={tmp_path / 'x'}"], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and "does not use a replay buffer" in out.stderr
+
+
+def test_diverging_learner_stops_without_saving_the_diverged_state(tmp_path):
+    """Learning rates of 1e30 make SAC's first update non-finite (Adam moves each weight by about the
+    learning rate, so the call's second gradient step overflows). The run must raise LearningDiverged at
+    that update instead of training on and publishing NaN weights, skip the end-of-run checkpoint of the
+    diverged state (without the guard the run trains on and saves it), and write a summary naming the
+    non-finite losses."""
+    module = algos.get("sac")
+    run = RunConfig(algo="sac", task="cartpole_balance", num_workers=2, envs_per_worker=16, total_steps=20_000,
+                    seed=0, logdir=str(tmp_path), serial=True, eval_envs=2)
+    cfg = apply_overrides(module.Config(), {**TINY_SAC, "actor_learning_rate": 1e30, "critic_learning_rate": 1e30})
+    with pytest.raises(LearningDiverged, match="non-finite loss/.* at update 1 ") as info:
+        Trainer(run, module, cfg, {}).train()
+    summary = json.load(open(tmp_path / "summary.json"))
+    assert summary["interrupted"] and summary["updates"] == 1 and "non-finite" in summary["diverged"]
+    assert 0 < summary["env_steps"] < 20_000
+    assert info.value.names and all(name.startswith("loss/") for name in info.value.names)
+    ckpt = Checkpointer(str(tmp_path / "checkpoints"))
+    assert ckpt.all_steps() == []
+    ckpt.close()

@@ -291,6 +291,7 @@ class Trainer:
         last_eval: dict[str, float] = {}
         evaluated_at = -1  # env steps of the last periodic evaluation
         interrupted = False
+        diverged: LearningDiverged | None = None
         prefetch: _Prefetcher | None = None
         source: _ReplaySource | _TrajectorySource | None = None
         progress = ProgressBar(run.total_steps, counters["env_steps"])
@@ -313,6 +314,9 @@ class Trainer:
                 t_publish = time.perf_counter()
                 counters["updates"] += 1
                 publish = source.advance(counters, stats)
+                bad = sorted(k for k, v in scalars.items() if not math.isfinite(v))
+                if bad:  # before the weights reach the workers or a checkpoint
+                    raise LearningDiverged(bad, counters, ckpt.latest_step())
                 if publish:
                     counters["version"] += 1
                     pool.publish(learner.call(stop, self._numpy_weights, state), counters["version"])
@@ -342,6 +346,8 @@ class Trainer:
                     next_ckpt += run.checkpoint_every
         except (KeyboardInterrupt, StopRequested):
             interrupted = True
+        except LearningDiverged as e:
+            diverged = e
         finally:
             progress.close()
             if prefetch is not None:
@@ -351,13 +357,14 @@ class Trainer:
             pool.close()
             if prefetch is not None:
                 prefetch.join()
-            self._final_save(ckpt, counters, state, source)
+            if diverged is None:  # a diverged state is not saved: the last checkpoint stands
+                self._final_save(ckpt, counters, state, source)
             ckpt.close()
             if store is not None:
                 store.close()
             learner.close()
             restore_signals()
-        interrupted = interrupted or stop.is_set()
+        interrupted = interrupted or stop.is_set() or diverged is not None
         if not interrupted and evaluated_at != counters["env_steps"]:
             evaluator.submit(self._numpy_weights(state), dict(counters), time.time() - t_start)
         last_eval = evaluator.close(cancel=interrupted)
@@ -367,8 +374,12 @@ class Trainer:
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
                    "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
                    "checkpoints": self.ckpt_dir, "interrupted": interrupted, **last_eval}
+        if diverged is not None:
+            summary["diverged"] = str(diverged)
         with open(os.path.join(run.logdir, "summary.json"), "w") as f:
             json.dump(summary, f, indent=2)
+        if diverged is not None:
+            raise diverged
         return summary
 
     def _final_save(self, ckpt: Any, counters: dict[str, int], state: Any, source: Any) -> None:
@@ -405,6 +416,20 @@ class Trainer:
 
     def _numpy_weights(self, state: Any) -> dict:
         return nets.to_numpy(self.learner.weights(state))
+
+
+class LearningDiverged(FloatingPointError):
+    """An update returned a non-finite loss. The trainer stops at once, saves no checkpoint of the
+    diverged state (the last one written stands), flushes the metrics, writes ``summary.json`` with
+    ``"diverged"`` set to this message, and raises this error."""
+
+    def __init__(self, names: list[str], counters: dict[str, int], last_checkpoint: int | None):
+        where = (f"the last checkpoint, env step {last_checkpoint}, stands" if last_checkpoint is not None
+                 else "no checkpoint was written before it")
+        super().__init__(f"learning diverged: non-finite {', '.join(names)} at update {counters['updates']} "
+                         f"(env step {counters['env_steps']}); {where}. Lower the learning rates or the "
+                         "update-to-data ratio, or clip gradients (max_grad_norm), and --resume.")
+        self.names = names
 
 
 def stop_on_signals(stop: threading.Event) -> Callable[[], None]:
