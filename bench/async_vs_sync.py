@@ -9,7 +9,8 @@ batch and weights:
 
 * ``async`` (the runtime as it is): a worker process steps the robots and writes replay rows while the
   learner samples ``[U, B]`` batches and updates back to back, publishing weights every
-  ``--publish_every`` updates; collection, training and weight sync overlap.
+  ``--publish_every`` updates; collection, training and weight sync overlap (weights of 8 MiB and more
+  are written by a background thread, as the trainer does; ``--publish_inline`` writes them in the loop).
 * ``sync`` (in turn): collect one episode on every robot (the same worker code, run in this process),
   then train ``utd x`` the new transitions, then sync the weights, then collect again; the robots wait
   while the learner trains and the weights travel.
@@ -64,6 +65,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--modes", default="async,sync")
     ap.add_argument("--sync_mb", type=float, default=256.0, help="MB of weights each sync moves")
     ap.add_argument("--publish_every", type=int, default=8, help="async: updates between weight publications")
+    ap.add_argument("--publish_inline", action="store_true",
+                    help="async: the learner writes each version itself (default: as the trainer, a background "
+                         "thread writes weights of PREFETCH_MIN_BYTES and more)")
     ap.add_argument("--utd", type=float, default=1.0, help="sync: gradient steps per collected transition")
     ap.add_argument("--batch_size", type=int, default=256)
     ap.add_argument("--platform", default="jax", choices=("jax", "mlx"))
@@ -105,7 +109,9 @@ class Learner:
     def weights(self) -> dict:
         w = self._nets.to_numpy(self.learner.weights(self.state))
         self.version += 1
-        self.ballast[:1] = self.version  # a new payload each version (the channel checksums it)
+        # A new payload each version (the channel checksums it). The publishing thread may still be copying
+        # the last version's ballast: then that copy gets this word, which changes nothing measured.
+        self.ballast[:1] = self.version
         return {**w, "ballast": self.ballast}
 
     def update(self, batch: dict) -> None:
@@ -126,6 +132,9 @@ def _batch(pool, learner: Learner, rng: np.random.Generator, serial: bool) -> di
 
 def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) -> dict:
     from unilab_jax.runtime.pool import WorkerPool
+    from unilab_jax.runtime.weights import WeightPublisher
+    from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
+    from unilab_jax.xp import tree_leaves
 
     serial = mode == "sync"
     overrides = {"robots": tuple(addresses), "episode_length": args.episode_length, **IMAGE_TASKS.get(policy, {})}
@@ -141,9 +150,11 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
                       replay_capacity=COMMON["replay_capacity"], serial=serial)
     rng = np.random.default_rng(args.seed)
     phases = {"collect_s": 0.0, "train_s": 0.0, "sync_s": 0.0}
+    large = sum(np.asarray(a).nbytes for a in tree_leaves(first)) >= PREFETCH_MIN_BYTES
     with pool:
         pool.start()
         pool.publish(first, learner.version)
+        publisher = WeightPublisher(pool.publish) if not serial and large and not args.publish_inline else None
         t_start = time.perf_counter()
         t_window = t_end = None
         updates = episodes0 = 0
@@ -180,9 +191,11 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
                 t1 = time.perf_counter()
                 phases["train_s"] += t1 - t0
                 if updates % args.publish_every == 0:
-                    pool.publish(learner.weights(), learner.version)
+                    (publisher.submit if publisher is not None else pool.publish)(learner.weights(), learner.version)
                     phases["sync_s"] += time.perf_counter() - t1
         episodes = pool.stats()["episodes"] - episodes0
+        if publisher is not None:
+            publisher.close()
     window = t_end - t_window
     per_robot = episodes / len(addresses)
     return {"mode": mode, "policy": policy, "window_s": window, "episodes": episodes, "updates": updates,

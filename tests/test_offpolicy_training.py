@@ -21,6 +21,7 @@ import pytest
 
 from unilab_jax import algos
 from unilab_jax.config import apply_overrides
+from unilab_jax.runtime.weights import WeightPublisher
 from unilab_jax.trainer import RunConfig, Trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -111,6 +112,24 @@ def test_budget_below_learning_starts_ends_cleanly(tmp_path):
     assert "eval/return" in summary
     assert os.listdir(summary["checkpoints"]) and all("loss/critic_loss" not in r for r in rows)
     assert any("replay/size" in r for r in rows)  # warm-up rows are logged while waiting
+
+
+def test_large_weights_are_published_by_the_background_thread(tmp_path, monkeypatch):
+    """An actor of 1536 x 1536 (9.4 MB, above the workers' PREFETCH_MIN_BYTES) makes the trainer write its
+    weights through WeightPublisher: every published version goes through the thread in order, the run still
+    trains, the workers act with new versions (the pool reports the oldest one a worker holds), and the loop
+    ends cleanly with the thread closed."""
+    recipe = {"actor_hidden": (1536, 1536), "critic_hidden": (8,), "batch_size": 32, "updates_per_call": 2,
+              "publish_every": 2, "learning_starts": 256, "replay_capacity": 8_192, "utd": 0.1}
+    submitted = []
+    real_submit = WeightPublisher.submit
+    monkeypatch.setattr(WeightPublisher, "submit",
+                        lambda self, tree, v: (submitted.append(v), real_submit(self, tree, v)))
+    config, summary, rows = _train(tmp_path, "sac", recipe, 3_000, eval_envs=2)
+    _check_replay_loop(config, summary, rows, 3_000)
+    train = [r for r in rows if "loss/critic_loss" in r]
+    assert summary["updates"] >= 5 and len(submitted) >= 5 and submitted == sorted(set(submitted))
+    assert max(r["perf/worker_policy_version_min"] for r in train) >= 2
 
 
 def test_serial_replay_loop_holds_the_ratio(tmp_path):

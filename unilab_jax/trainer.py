@@ -254,6 +254,8 @@ class Trainer:
     def train(self) -> dict[str, Any]:
         from unilab_jax.checkpoint import Checkpointer
         from unilab_jax.runtime.pool import WorkerPool, cpu_placement
+        from unilab_jax.runtime.weights import WeightPublisher
+        from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
 
         run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
         evaluator = _AsyncEvaluator(self, stop)
@@ -284,6 +286,10 @@ class Trainer:
         else:
             pool = WorkerPool(**pool_kwargs, worker_cpus=cpu_placement(run.num_workers, run.pin_cpus)
                               if run.pin_cpus >= 0 and not run.serial else None)
+        # Large weights of an asynchronous run are written by a background thread (the learner updates on);
+        # lock-step, serial and Ray runs publish inline.
+        publisher = (WeightPublisher(pool.publish) if replay and isinstance(pool, WorkerPool) and not run.serial
+                     and sum(np.asarray(a).nbytes for a in tree_leaves(weights)) >= PREFETCH_MIN_BYTES else None)
         ckpt = Checkpointer(self.ckpt_dir)
         restore_signals = stop_on_signals(stop)
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
@@ -319,7 +325,8 @@ class Trainer:
                     raise LearningDiverged(bad, counters, ckpt.latest_step())
                 if publish:
                     counters["version"] += 1
-                    pool.publish(learner.call(stop, self._numpy_weights, state), counters["version"])
+                    host = learner.call(stop, self._numpy_weights, state)
+                    (publisher.submit if publisher is not None else pool.publish)(host, counters["version"])
                 now = time.time()
                 scalars.update({"perf/learner_wait_s": t_update - t_wait, "perf/update_s": t_publish - t_update,
                                 "perf/publish_s": time.perf_counter() - t_publish})
@@ -354,6 +361,8 @@ class Trainer:
                 prefetch.stop()
             if source is not None:
                 source.stop()  # the last spill to disk, while the rings still exist
+            if publisher is not None:
+                publisher.close()
             pool.close()
             if prefetch is not None:
                 prefetch.join()
@@ -918,6 +927,9 @@ def _worker_scalars(stats: dict[str, Any]) -> dict[str, float]:
            "perf/worker_restarts": stats["worker_restarts"], "perf/nonfinite_rows": stats["nonfinite_rows"],
            "perf/interrupted_steps": stats["interrupted_steps"], "perf/workers_waiting": stats["workers_waiting"]}
     out.update({f"perf/worker_{k}_fraction": v for k, v in stats["worker_time_fraction"].items()})
+    if stats.get("worker_policy_versions"):  # the oldest weights a worker acts with, beside the newest written
+        out["perf/worker_policy_version_min"] = float(min(stats["worker_policy_versions"]))
+        out["perf/published_version"] = float(stats["published_version"])
     return out
 
 

@@ -13,7 +13,7 @@ import rt_helpers
 
 from unilab_jax.runtime.ring import RingTimeout
 from unilab_jax.runtime.shm import SharedArrays
-from unilab_jax.runtime.weights import WeightChannel, WeightPrefetcher, WeightReader
+from unilab_jax.runtime.weights import WeightChannel, WeightPrefetcher, WeightPublisher, WeightReader
 
 
 class Stats(NamedTuple):
@@ -143,6 +143,54 @@ def test_prefetcher_hands_over_whole_versions_and_never_touches_the_held_copy():
     assert len(taken) == 100, f"only {len(taken)} versions handed over in 60 s"
     assert taken[-1] - taken[0] > len(taken), "the writer hardly raced the prefetch thread"
     assert not prefetch._thread.is_alive()
+
+
+def test_publisher_does_not_block_the_learner_and_the_newest_version_wins():
+    """While the thread is inside a (held) publish, submit returns at once; versions submitted meanwhile
+    replace each other; flush writes the newest; the channel ends on it, whole."""
+    ch = WeightChannel(rt_helpers.weight_tree(0.0))
+    release, entered, written = threading.Event(), threading.Event(), []
+
+    def publish(tree, version):
+        entered.set()
+        assert release.wait(30)
+        ch.publish(tree, version)
+        written.append(version)
+
+    pub = WeightPublisher(publish)
+    pub.submit(rt_helpers.weight_tree(1.0), 1)
+    assert entered.wait(30)
+    for v in (2, 3, 4):  # the thread is held inside version 1's publish: these must not wait for it
+        pub.submit(rt_helpers.weight_tree(float(v)), v)
+    assert written == [] and pub.skipped == 2
+    release.set()
+    pub.flush()
+    assert written == [1, 4] and pub.published_version == 4
+    reader = WeightReader(ch.handle)
+    tree, version = reader.read()
+    assert version == 4 and _leaves_equal(tree, 4.0)
+    pub.submit(rt_helpers.weight_tree(5.0), 5)
+    pub.close()  # writes the last submitted version before stopping
+    assert written[-1] == 5 and not pub._thread.is_alive()
+    with pytest.raises(RuntimeError, match="closed"):
+        pub.submit(rt_helpers.weight_tree(6.0), 6)
+    reader.close()
+    ch.close()
+
+
+def test_publisher_raises_the_thread_failure_at_the_next_call():
+    ch = WeightChannel(rt_helpers.weight_tree(0.0))
+    pub = WeightPublisher(ch.publish)
+    pub.submit(rt_helpers.weight_tree(1.0), 1)
+    pub.flush()
+    pub.submit(rt_helpers.weight_tree(1.0), 1)  # not newer: the channel refuses it in the thread
+    with pytest.raises(RuntimeError, match="publishing weights failed: weight versions must increase"):
+        pub.flush()
+    with pytest.raises(RuntimeError, match="publishing weights failed"):
+        pub.submit(rt_helpers.weight_tree(2.0), 2)
+    with pytest.raises(RuntimeError, match="publishing weights failed"):
+        pub.close()
+    ch.close()
 
 
 def test_weights_cross_process_stress_never_torn():

@@ -31,7 +31,9 @@ Large weights (a VLA-sized policy: hundreds of MB, tens of ms per copy and check
 worker that reads them between two robot steps. :class:`WeightPrefetcher` reads new versions in a
 background thread instead (numpy's copy and reductions release the GIL, and the worker's thread mostly
 waits on its robots) and hands a finished copy over at the worker's next step; it never starts the next
-copy before the worker has taken the last one, so the two private buffers are enough.
+copy before the worker has taken the last one, so the two private buffers are enough. On the writer's
+side :class:`WeightPublisher` does the same for the learner: it writes each new version in a background
+thread (the newest submitted wins), so the learner updates on while a large model is being published.
 """
 
 from __future__ import annotations
@@ -269,3 +271,78 @@ class WeightPrefetcher:
         """Stops the thread (the reader stays open: its owner closes it)."""
         self._stop.set()
         self._thread.join()
+
+
+class WeightPublisher:
+    """Runs a writer's ``publish(tree, version)`` in a background thread, so the learner does not wait
+    while a large model is copied into the channel and checksummed (hundreds of MB: tens of ms).
+
+    :meth:`submit` returns at once. Latest wins: a version submitted while an earlier one is still being
+    written replaces any submitted one not yet started (that one is skipped, counted in ``skipped``;
+    versions still increase, and readers only ever want the newest). :meth:`flush` waits until everything
+    submitted is written; :meth:`close` writes the last submitted version, then stops the thread. The
+    caller must not change a submitted tree (the trainer hands over fresh host copies). An exception
+    raised by ``publish`` stops the thread and is raised again by the next submit, flush or close.
+    """
+
+    def __init__(self, publish: Any):
+        self._publish = publish
+        self._cond = threading.Condition()
+        self._pending: tuple[Any, int] | None = None
+        self._busy = False
+        self._closed = False
+        self._error: BaseException | None = None
+        self.published_version = -1
+        self.skipped = 0
+        self._thread = threading.Thread(target=self._loop, name="weight-publish", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                while self._pending is None and not self._closed:
+                    self._cond.wait()
+                if self._pending is None:
+                    return
+                (tree, version), self._pending = self._pending, None
+                self._busy = True
+            try:
+                self._publish(tree, version)
+            except BaseException as e:  # handed to the caller's next call
+                with self._cond:
+                    self._error, self._busy = e, False
+                    self._cond.notify_all()
+                return
+            with self._cond:
+                self._busy, self.published_version = False, version
+                self._cond.notify_all()
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise RuntimeError(f"publishing weights failed: {self._error}") from self._error
+
+    def submit(self, tree: Any, version: int) -> None:
+        """Queues ``tree`` as ``version`` (replacing a queued one not yet started)."""
+        with self._cond:
+            self._raise()
+            if self._closed:
+                raise RuntimeError("the publisher is closed")
+            if self._pending is not None:
+                self.skipped += 1
+            self._pending = (tree, int(version))
+            self._cond.notify_all()
+
+    def flush(self) -> None:
+        """Waits until every submitted version is written (or the thread failed: then raises)."""
+        with self._cond:
+            while (self._pending is not None or self._busy) and self._error is None:
+                self._cond.wait()
+            self._raise()
+
+    def close(self) -> None:
+        """Writes the last submitted version, stops the thread, raises a failure of the thread."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join()
+        self._raise()
