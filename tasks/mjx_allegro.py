@@ -83,9 +83,9 @@ class AllegroRotateMjx:
                                * c.noise_level)
         self.scales = ar.reward_scales(c)
         self.spec = base.TaskSpec(
-            name=ar.NAME, obs_dim=ar.FRAME_DIM, critic_obs_dim=ar.CRITIC_OBS_DIM, action_dim=ar.NJ,
+            name=ar.NAME, obs_dim=ar.actor_obs_dim(c), critic_obs_dim=ar.CRITIC_OBS_DIM, action_dim=ar.NJ,
             episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=ar.REWARD_TERMS,
-            privileged_dim=ar.EXTRINSICS_DIM,
+            privileged_dim=ar.extrinsics_dim(c),
         )
 
     # ---- objects --------------------------------------------------------------------------------
@@ -147,7 +147,7 @@ class AllegroRotateMjx:
         jp, jv, pos, quat, tau = self._state(data)
         zero = jnp.zeros_like(pos)
         return ar.observe(jp, jv, pos, quat, tau, info["target"], zero, zero, params,
-                          self._noise(key, jp.shape[0]), self.consts)
+                          self._noise(key, jp.shape[0]), self.consts, self.config)
 
     def reset(self, key: jax.Array) -> EnvState:
         n = self.num_envs

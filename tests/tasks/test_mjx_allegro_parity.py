@@ -26,7 +26,9 @@ with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx
 
 M = 2
-OVERRIDES = {"noise_level": 0.0, "shapes": ("box",), "episode_length": 100}
+# The privileged actor (object state in the extrinsics and the actor's observation): its columns are compared too.
+OVERRIDES = {"noise_level": 0.0, "shapes": ("box",), "episode_length": 100, "object_state_extrinsics": True,
+             "actor_extrinsics": True}
 OPTS = {"xla_backend_optimization_level": 0}  # a third less XLA compile time; numerics unchanged
 
 
