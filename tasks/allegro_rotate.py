@@ -31,13 +31,17 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   0.025); mass U(0.03, 0.12) kg with the solid's inertia; centre of mass + U(+-0.01) m; friction
   U(0.5, 1.2). The inactive shape's geom is parked 1 m below the object (no contact can reach it).
 * Actor observation (48), one HORA frame: joint angles - canonical 16 (noise U(+-0.01)), joint
-  velocities 16 (noise U(+-0.1)), previous targets - canonical 16.
+  velocities 16 (noise U(+-0.1)), previous targets - canonical 16; with ``actor_extrinsics`` followed by the
+  extrinsics (below, noise-free): a privileged actor, which the PPO recipe uses (the HORA recipe keeps the
+  frames proprioceptive and gives its teacher the extrinsics through z).
 * Critic observation (88): the clean frame 48, object position relative to the palm centre 3, object
   quaternion 4 (w >= 0), object linear / angular velocity over the last step 3 + 3, actuator torques 16,
   and the extrinsics 11.
 * Extrinsics (``self.extrinsics [M, 11]``, HORA's privileged vector): mass 1, centre-of-mass offset 3,
   friction 1, size scale 1, shape one-hot 2 (``SHAPES`` order), object position relative to the palm
-  centre 3 (a property, read each step).
+  centre 3 (a property, read each step). With ``object_state_extrinsics`` (ours; [M, 21]) also the object's
+  quaternion (w >= 0) 4 and its finite-difference linear and angular velocity over the last step 3 + 3 (0
+  after a reset): the state a teacher needs to close the loop on the rotation.
 * Reward per step = sum(scale * term), not multiplied by dt (HORA's convention), terms in
   ``REWARD_SCALES``: ``rotate`` = clip(object angular velocity about world z, -0.5, 0.5) rad/s, the
   velocity being the finite difference of the orientation over the control step as in HORA;
@@ -58,9 +62,10 @@ The observation/reward math is module-level functions written against the shim (
 ``observe``, ``reward_terms``, ``object_fields``), which ``tasks/mjx_allegro.py`` runs on jax arrays.
 Deviations from HORA: the object rests on the palm instead of being held by the fingertips alone (no grasp
 cache to generate; a still hand does not drop it, so rotation, not holding, is what must be learned); the
-fall penalty is ours. In the history variant, ``HistoryTask`` appends the extrinsics read after the
-auto-reset, so an ended env's ``next_obs`` extrinsics (its object position) are the new episode's; this
-task's own critic observation has the true successor's.
+fall penalty is ours; so are the object's orientation and velocities in the extrinsics and the privileged
+PPO actor (``object_state_extrinsics``, ``actor_extrinsics``). In the history variant, ``HistoryTask``
+appends the extrinsics read after the auto-reset, so an ended env's ``next_obs`` extrinsics (its object
+position) are the new episode's; this task's own critic observation has the true successor's.
 """
 
 from __future__ import annotations
