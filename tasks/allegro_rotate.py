@@ -130,6 +130,9 @@ class AllegroRotateConfig:
     angvel_clip: tuple[float, float] = (-0.5, 0.5)
     # Reset and termination.
     reset_pose_noise: float = 0.05
+    # Added to the reset targets (not the joints) of the index, middle and ring fingers' medial and distal
+    # joints (rad): the fingers start pressing on the object's top edge instead of resting at it.
+    reset_press: float = 0.0
     fall_radius: float = 0.09
     # Object randomisation (per episode).
     domain_randomization: bool = True
@@ -379,6 +382,11 @@ def step_math(joint_pos, joint_vel, obj_pos, obj_quat, torque, info, params, noi
     return next_obs, next_cobs, done, scaled, total_reward(scaled), (linvel, angvel)
 
 
+def press_offset(reset_press: float):
+    """[16] the reset targets' offset from the reset pose: ``reset_press`` on the fingers' medial and distal joints."""
+    return np.array([0.0, 0.0, reset_press, reset_press] * 3 + [0.0] * 4)
+
+
 def next_targets(target, action, action_scale: float, lower, upper):
     """HORA's relative position targets: clip(previous + action_scale * action, joint range)."""
     xp = shim.namespace(target, action)
@@ -525,8 +533,9 @@ class AllegroRotate(base.Task):
         pos = np.stack([np.full(n, PALM_CENTER[0]), np.full(n, PALM_CENTER[1]), self.rest_height(draws)], axis=1)
         quat = yaw_quat(r.uniform(-math.pi, math.pi, size=n))
         qpos = np.concatenate([pose, pos, quat], axis=1)
-        self.sim.set_state(idx, qpos, np.zeros((n, self.model.nv)), ctrl=pose)
-        self.info["target"][idx] = pose
+        target = np.clip(pose + press_offset(c.reset_press), self.lower, self.upper)
+        self.sim.set_state(idx, qpos, np.zeros((n, self.model.nv)), ctrl=target)
+        self.info["target"][idx] = target
         self.info["obj_pos"][idx] = pos
         self.info["obj_quat"][idx] = quat
         self.object_vel[idx] = 0.0

@@ -140,8 +140,9 @@ class AllegroRotateMjx:
         pos = jnp.stack([jnp.full(n, ar.PALM_CENTER[0]), jnp.full(n, ar.PALM_CENTER[1]), height], axis=1)
         quat = ar.yaw_quat(jax.random.uniform(ks[2], (n,), jnp.float32, -math.pi, math.pi))
         qpos = jnp.concatenate([pose, pos, quat], axis=1)
-        data = forward(self.mjx_model, self._template, fields, qpos, jnp.zeros((n, self.model.nv)), pose)
-        return data, fields, params, {"target": pose, "obj_pos": pos, "obj_quat": quat}
+        target = jnp.clip(pose + jnp.asarray(ar.press_offset(c.reset_press), jnp.float32), self.lower, self.upper)
+        data = forward(self.mjx_model, self._template, fields, qpos, jnp.zeros((n, self.model.nv)), target)
+        return data, fields, params, {"target": target, "obj_pos": pos, "obj_quat": quat}
 
     def _observe(self, data: Any, info: dict, params: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         jp, jv, pos, quat, tau = self._state(data)

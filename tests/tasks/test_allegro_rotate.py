@@ -175,6 +175,18 @@ def test_privileged_actor_reads_the_object_state_extrinsics():
     task.close()
 
 
+def test_reset_press_offsets_the_targets_not_the_joints():
+    task = tasks.make("allegro_rotate", 3, seed=2, overrides={"reset_press": 0.25})
+    obs, _ = task.reset()
+    pose = task.sim.qpos[:, :16]
+    assert np.abs(pose - CANON).max() <= CONFIG.reset_pose_noise + 1e-9  # the joints at the noisy canonical pose
+    press = np.zeros(16)
+    press[[2, 3, 6, 7, 10, 11]] = 0.25  # index, middle, ring: medial and distal
+    np.testing.assert_allclose(task.info["target"] - pose, np.broadcast_to(press, (3, 16)), atol=1e-12)
+    np.testing.assert_allclose(obs[:, 32:48], task.info["target"] - CANON, atol=1e-6)
+    task.close()
+
+
 def test_bad_config_is_refused():
     with pytest.raises(ValueError, match="shapes"):
         tasks.make("allegro_rotate", 1, overrides={"shapes": ("sphere",)})
