@@ -1,6 +1,7 @@
 """HORA on Allegro in-hand rotation, its own task: a teacher that reads the object's parameters (mass,
-centre of mass, friction, size, shape, position), then a student that infers them from 30 frames of
-proprioceptive history; one command (see unilab_jax/hora_cli.py). The two are compared on rotation rate.
+centre of mass, friction, size, shape) and state (position, orientation, velocities), then a student that
+infers them from 30 frames of proprioceptive history; one command (see unilab_jax/hora_cli.py). The two
+are compared on rotation rate.
 
     python experiments/hora_allegro.py --num_workers=15 --envs_per_worker=64 --teacher_steps=60000000 \\
         --student_steps=10000000 --logdir=runs/hora_allegro
@@ -12,7 +13,9 @@ from ppo_allegro_rotate import TASK_RECIPE as PPO_TASK_RECIPE
 
 from unilab_jax.hora_cli import run_hora
 
-TASK_RECIPE = {**PPO_TASK_RECIPE, "history_extrinsics": True}  # rotation and fall terms only, as the PPO recipe
+# Rotation and fall terms only and the object's state in the extrinsics, as the PPO recipe; but the frames stay
+# proprioceptive (the student's history must not hold the extrinsics): the teacher sees them through z only.
+TASK_RECIPE = {**PPO_TASK_RECIPE, "actor_extrinsics": False, "history_extrinsics": True}
 TEACHER_RECIPE = {**PPO_RECIPE, "encoder_hidden": (256, 128), "z_dim": 8}  # HORA's encoder, 8-dim z
 STUDENT_RECIPE = {"horizon": 16, "learning_rate": 1e-3, "num_epochs": 2, "num_minibatches": 4}
 

@@ -31,13 +31,17 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   0.025); mass U(0.03, 0.12) kg with the solid's inertia; centre of mass + U(+-0.01) m; friction
   U(0.5, 1.2). The inactive shape's geom is parked 1 m below the object (no contact can reach it).
 * Actor observation (48), one HORA frame: joint angles - canonical 16 (noise U(+-0.01)), joint
-  velocities 16 (noise U(+-0.1)), previous targets - canonical 16.
+  velocities 16 (noise U(+-0.1)), previous targets - canonical 16; with ``actor_extrinsics`` followed by the
+  extrinsics (below, noise-free): a privileged actor, which the PPO recipe uses (the HORA recipe keeps the
+  frames proprioceptive and gives its teacher the extrinsics through z).
 * Critic observation (88): the clean frame 48, object position relative to the palm centre 3, object
   quaternion 4 (w >= 0), object linear / angular velocity over the last step 3 + 3, actuator torques 16,
   and the extrinsics 11.
 * Extrinsics (``self.extrinsics [M, 11]``, HORA's privileged vector): mass 1, centre-of-mass offset 3,
   friction 1, size scale 1, shape one-hot 2 (``SHAPES`` order), object position relative to the palm
-  centre 3 (a property, read each step).
+  centre 3 (a property, read each step). With ``object_state_extrinsics`` (ours; [M, 21]) also the object's
+  quaternion (w >= 0) 4 and its finite-difference linear and angular velocity over the last step 3 + 3 (0
+  after a reset): the state a teacher needs to close the loop on the rotation.
 * Reward per step = sum(scale * term), not multiplied by dt (HORA's convention), terms in
   ``REWARD_SCALES``: ``rotate`` = clip(object angular velocity about world z, -0.5, 0.5) rad/s, the
   velocity being the finite difference of the orientation over the control step as in HORA;
@@ -58,9 +62,10 @@ The observation/reward math is module-level functions written against the shim (
 ``observe``, ``reward_terms``, ``object_fields``), which ``tasks/mjx_allegro.py`` runs on jax arrays.
 Deviations from HORA: the object rests on the palm instead of being held by the fingertips alone (no grasp
 cache to generate; a still hand does not drop it, so rotation, not holding, is what must be learned); the
-fall penalty is ours. In the history variant, ``HistoryTask`` appends the extrinsics read after the
-auto-reset, so an ended env's ``next_obs`` extrinsics (its object position) are the new episode's; this
-task's own critic observation has the true successor's.
+fall penalty is ours; so are the object's orientation and velocities in the extrinsics and the privileged
+PPO actor (``object_state_extrinsics``, ``actor_extrinsics``). In the history variant, ``HistoryTask``
+appends the extrinsics read after the auto-reset, so an ended env's ``next_obs`` extrinsics (its object
+position) are the new episode's; this task's own critic observation has the true successor's.
 """
 
 from __future__ import annotations
@@ -86,6 +91,7 @@ NJ = 16
 FRAME_DIM = 3 * NJ  # 48
 EXTRINSICS_DIM = 1 + 3 + 1 + 1 + len(SHAPES) + 3  # 11
 CRITIC_OBS_DIM = FRAME_DIM + 3 + 4 + 3 + 3 + NJ + EXTRINSICS_DIM  # 88
+OBJECT_STATE_DIM = 4 + 3 + 3  # quaternion, linear, angular velocity: the extrinsics' tail (object_state_extrinsics)
 # Index / middle / ring: spread 0, proximal, medial, distal; thumb: rotation, abduction, medial, distal.
 CANONICAL_POSE = (0.0, 1.2, 1.2, 0.8) * 3 + (0.3, 0.4, 0.3, 0.3)
 PALM_CENTER = (-0.03, 0.0)  # world xy of the object's rest position (on the palm, 3 cm from the finger roots)
@@ -116,10 +122,17 @@ class AllegroRotateConfig:
     noise_level: float = 1.0
     noise_joint_pos: float = 0.01
     noise_joint_vel: float = 0.1
+    # Privileged inputs (see the module docstring): the extrinsics also hold the object's quaternion, linear and
+    # angular velocity (HORA's vector has its position only); the actor's observation ends with the extrinsics.
+    object_state_extrinsics: bool = False
+    actor_extrinsics: bool = False
     # Reward.
     angvel_clip: tuple[float, float] = (-0.5, 0.5)
     # Reset and termination.
     reset_pose_noise: float = 0.05
+    # Added to the reset targets (not the joints) of the index, middle and ring fingers' medial and distal
+    # joints (rad): the fingers start pressing on the object's top edge instead of resting at it.
+    reset_press: float = 0.0
     fall_radius: float = 0.09
     # Object randomisation (per episode).
     domain_randomization: bool = True
@@ -136,6 +149,14 @@ def default_config() -> AllegroRotateConfig:
 
 def reward_scales(config: AllegroRotateConfig) -> dict[str, float]:
     return base.reward_scales(config, REWARD_TERMS)
+
+
+def extrinsics_dim(config: AllegroRotateConfig) -> int:
+    return EXTRINSICS_DIM + (OBJECT_STATE_DIM if config.object_state_extrinsics else 0)
+
+
+def actor_obs_dim(config: AllegroRotateConfig) -> int:
+    return FRAME_DIM + (extrinsics_dim(config) if config.actor_extrinsics else 0)
 
 
 def check_config(config: AllegroRotateConfig) -> int:
@@ -273,10 +294,24 @@ def extrinsics(params, rel_pos):
     return shim.namespace(params, rel_pos).concat([params, rel_pos], axis=-1)
 
 
+def task_extrinsics(params, rel_pos, quat, linvel, angvel, object_state: bool):
+    """The task's extrinsics: ``extrinsics`` [M, 11], with ``object_state`` followed by the object's quaternion
+    (w >= 0), linear and angular velocity [M, 10]."""
+    ext = extrinsics(params, rel_pos)
+    if not object_state:
+        return ext
+    return shim.namespace(ext, quat).concat([ext, positive_w(quat), linvel, angvel], axis=-1)
+
+
+def positive_w(quat):
+    """``quat`` with w >= 0 (the same rotation)."""
+    xp = shim.namespace(quat)
+    return quat * xp.where(quat[:, :1] < 0, -xp.ones_like(quat[:, :1]), xp.ones_like(quat[:, :1]))
+
+
 def critic_obs(clean_frame, rel_pos, quat, linvel, angvel, torque, ext):
     xp = shim.namespace(clean_frame, quat)
-    sign = xp.where(quat[:, :1] < 0, -xp.ones_like(quat[:, :1]), xp.ones_like(quat[:, :1]))
-    return xp.concat([clean_frame, rel_pos, quat * sign, linvel, angvel, torque, ext], axis=-1)
+    return xp.concat([clean_frame, rel_pos, positive_w(quat), linvel, angvel, torque, ext], axis=-1)
 
 
 def fell(rel_pos, radius: float):
@@ -314,11 +349,16 @@ def relative_position(obj_pos, palm):
     return obj_pos - palm
 
 
-def observe(joint_pos, joint_vel, obj_pos, obj_quat, torque, target, linvel, angvel, params, noise, consts):
-    """(actor obs [M, 48], critic obs [M, 88]) of a state."""
+def observe(joint_pos, joint_vel, obj_pos, obj_quat, torque, target, linvel, angvel, params, noise, consts,
+            config: AllegroRotateConfig):
+    """(actor obs [M, 48] (then the task's extrinsics with ``config.actor_extrinsics``), critic obs [M, 88])."""
+    xp = shim.namespace(joint_pos, noise)
     rel = relative_position(obj_pos, consts["palm"])
     zero = noise * 0.0
     obs = actor_frame(joint_pos, joint_vel, target, consts["canonical"], noise)
+    if config.actor_extrinsics:
+        ext = task_extrinsics(params, rel, obj_quat, linvel, angvel, config.object_state_extrinsics)
+        obs = xp.concat([obs, ext], axis=-1)
     clean = actor_frame(joint_pos, joint_vel, target, consts["canonical"], zero)
     return obs, critic_obs(clean, rel, obj_quat, linvel, angvel, torque, extrinsics(params, rel))
 
@@ -329,16 +369,22 @@ def step_math(joint_pos, joint_vel, obj_pos, obj_quat, torque, info, params, noi
 
     ``info``: ``target`` (the targets this step applied), ``obj_pos`` / ``obj_quat`` (the object before the
     step); ``params [M, 8]`` the episode's object parameters; ``noise [M, 32]`` scaled observation noise.
-    Returns (next_obs, next_cobs, done [M] bool, scaled terms, reward [M], object angular velocity [M, 3]).
+    Returns (next_obs, next_cobs, done [M] bool, scaled terms, reward [M], (object linear, angular velocity)
+    [M, 3] each).
     """
     linvel, angvel = object_motion(obj_pos, obj_quat, info["obj_pos"], info["obj_quat"], dt)
     next_obs, next_cobs = observe(joint_pos, joint_vel, obj_pos, obj_quat, torque, info["target"], linvel, angvel,
-                                  params, noise, consts)
+                                  params, noise, consts, config)
     done = fell(relative_position(obj_pos, consts["palm"]), config.fall_radius)
     terms = reward_terms(angvel=angvel, linvel=linvel, joint_pos=joint_pos, joint_vel=joint_vel,
                          canonical=consts["canonical"], torque=torque, done=done, clip=tuple(config.angvel_clip))
     scaled = scale_terms(terms, scales)
-    return next_obs, next_cobs, done, scaled, total_reward(scaled), angvel
+    return next_obs, next_cobs, done, scaled, total_reward(scaled), (linvel, angvel)
+
+
+def press_offset(reset_press: float):
+    """[16] the reset targets' offset from the reset pose: ``reset_press`` on the fingers' medial and distal joints."""
+    return np.array([0.0, 0.0, reset_press, reset_press] * 3 + [0.0] * 4)
 
 
 def next_targets(target, action, action_scale: float, lower, upper):
@@ -419,13 +465,13 @@ class AllegroRotate(base.Task):
         # One model copy per env: the object's fields are rewritten at each of its resets.
         self.sim = BatchedSim(m, M, nsub, engine=c.physics_engine, models=[copy.copy(m) for _ in range(M)])
         self.spec = base.TaskSpec(
-            name=NAME, obs_dim=FRAME_DIM, critic_obs_dim=CRITIC_OBS_DIM, action_dim=NJ,
+            name=NAME, obs_dim=actor_obs_dim(c), critic_obs_dim=CRITIC_OBS_DIM, action_dim=NJ,
             episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=REWARD_TERMS,
-            privileged_dim=EXTRINSICS_DIM,
+            privileged_dim=extrinsics_dim(c),
         )
         self.params = np.zeros((M, EXTRINSICS_DIM - 3))  # mass, com 3, friction, scale, shape one-hot 2
         self.info = {"target": np.zeros((M, NJ)), "obj_pos": np.zeros((M, 3)), "obj_quat": np.zeros((M, 4))}
-        self.object_angvel_z = np.zeros(M)
+        self.object_vel = np.zeros((M, 6))  # the object's linear, angular velocity over the last step
         self.steps = np.zeros(M, dtype=np.int64)
         self.unstable_count = 0
 
@@ -465,9 +511,17 @@ class AllegroRotate(base.Task):
 
     @property
     def extrinsics(self) -> np.ndarray:
-        """[M, 11] float32: the episode's object parameters and its current position (HORA's privileged vector)."""
-        rel = relative_position(self.sim.qpos[:, NJ:NJ + 3], self.consts["palm"])
-        return extrinsics(self.params, rel).astype(np.float32)
+        """[M, 11] float32: the episode's object parameters and its current position (HORA's privileged vector);
+        [M, 21] with ``object_state_extrinsics`` (then its quaternion, linear and angular velocity)."""
+        q = self.sim.qpos
+        rel = relative_position(q[:, NJ:NJ + 3], self.consts["palm"])
+        return task_extrinsics(self.params, rel, q[:, NJ + 3:NJ + 7], self.object_vel[:, :3], self.object_vel[:, 3:],
+                               self.config.object_state_extrinsics).astype(np.float32)
+
+    @property
+    def object_angvel_z(self) -> np.ndarray:
+        """[M] the object's angular velocity about world z over the last step (rad/s; 0 after a reset)."""
+        return self.object_vel[:, 5]
 
     # ---- reset / step ---------------------------------------------------------------------------
     def _reset_envs(self, idx: np.ndarray) -> None:
@@ -479,11 +533,12 @@ class AllegroRotate(base.Task):
         pos = np.stack([np.full(n, PALM_CENTER[0]), np.full(n, PALM_CENTER[1]), self.rest_height(draws)], axis=1)
         quat = yaw_quat(r.uniform(-math.pi, math.pi, size=n))
         qpos = np.concatenate([pose, pos, quat], axis=1)
-        self.sim.set_state(idx, qpos, np.zeros((n, self.model.nv)), ctrl=pose)
-        self.info["target"][idx] = pose
+        target = np.clip(pose + press_offset(c.reset_press), self.lower, self.upper)
+        self.sim.set_state(idx, qpos, np.zeros((n, self.model.nv)), ctrl=target)
+        self.info["target"][idx] = target
         self.info["obj_pos"][idx] = pos
         self.info["obj_quat"][idx] = quat
-        self.object_angvel_z[idx] = 0.0
+        self.object_vel[idx] = 0.0
         self.steps[idx] = 0
 
     def _state(self):
@@ -499,7 +554,7 @@ class AllegroRotate(base.Task):
         jp, jv, pos, quat, tau = self._state()
         zero = np.zeros((self.num_envs, 3))
         return observe(jp, jv, pos, quat, tau, self.info["target"], zero, zero, self.params, self._noise(),
-                       self.consts)
+                       self.consts, self.config)
 
     def reset(self) -> tuple[np.ndarray, np.ndarray]:
         self._reset_envs(np.arange(self.num_envs))
@@ -517,9 +572,9 @@ class AllegroRotate(base.Task):
         """The rest of ``step`` once ``self.sim`` holds the post-physics state (the parity test calls it)."""
         c = self.config
         jp, jv, pos, quat, tau = self._state()
-        next_obs, next_cobs, done, scaled, reward, angvel = step_math(
+        next_obs, next_cobs, done, scaled, reward, (linvel, angvel) = step_math(
             jp, jv, pos, quat, tau, self.info, self.params, self._noise(), self.consts, c, self.scales, self.dt)
-        self.object_angvel_z = angvel[:, 2].copy()
+        self.object_vel = np.concatenate([linvel, angvel], axis=1)
         self.info["obj_pos"] = pos.copy()
         self.info["obj_quat"] = quat.copy()
         self.steps += 1

@@ -83,9 +83,9 @@ class AllegroRotateMjx:
                                * c.noise_level)
         self.scales = ar.reward_scales(c)
         self.spec = base.TaskSpec(
-            name=ar.NAME, obs_dim=ar.FRAME_DIM, critic_obs_dim=ar.CRITIC_OBS_DIM, action_dim=ar.NJ,
+            name=ar.NAME, obs_dim=ar.actor_obs_dim(c), critic_obs_dim=ar.CRITIC_OBS_DIM, action_dim=ar.NJ,
             episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=ar.REWARD_TERMS,
-            privileged_dim=ar.EXTRINSICS_DIM,
+            privileged_dim=ar.extrinsics_dim(c),
         )
 
     # ---- objects --------------------------------------------------------------------------------
@@ -140,14 +140,15 @@ class AllegroRotateMjx:
         pos = jnp.stack([jnp.full(n, ar.PALM_CENTER[0]), jnp.full(n, ar.PALM_CENTER[1]), height], axis=1)
         quat = ar.yaw_quat(jax.random.uniform(ks[2], (n,), jnp.float32, -math.pi, math.pi))
         qpos = jnp.concatenate([pose, pos, quat], axis=1)
-        data = forward(self.mjx_model, self._template, fields, qpos, jnp.zeros((n, self.model.nv)), pose)
-        return data, fields, params, {"target": pose, "obj_pos": pos, "obj_quat": quat}
+        target = jnp.clip(pose + jnp.asarray(ar.press_offset(c.reset_press), jnp.float32), self.lower, self.upper)
+        data = forward(self.mjx_model, self._template, fields, qpos, jnp.zeros((n, self.model.nv)), target)
+        return data, fields, params, {"target": target, "obj_pos": pos, "obj_quat": quat}
 
     def _observe(self, data: Any, info: dict, params: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         jp, jv, pos, quat, tau = self._state(data)
         zero = jnp.zeros_like(pos)
         return ar.observe(jp, jv, pos, quat, tau, info["target"], zero, zero, params,
-                          self._noise(key, jp.shape[0]), self.consts)
+                          self._noise(key, jp.shape[0]), self.consts, self.config)
 
     def reset(self, key: jax.Array) -> EnvState:
         n = self.num_envs

@@ -146,6 +146,47 @@ def test_objects_are_redrawn_per_episode_in_each_envs_model():
     task.close()
 
 
+def test_privileged_actor_reads_the_object_state_extrinsics():
+    """``object_state_extrinsics`` appends the object's quaternion and finite-difference velocities to the
+    extrinsics; ``actor_extrinsics`` ends the actor's observation with them; a reset zeroes the velocities."""
+    task = tasks.make("allegro_rotate", 2, seed=0, overrides={"noise_level": 0.0, "episode_length": 3,
+                                                              "object_state_extrinsics": True,
+                                                              "actor_extrinsics": True})
+    assert task.spec.obs_dim == 48 + 21 and task.spec.privileged_dim == 21
+    obs, _ = task.reset()
+    np.testing.assert_allclose(obs[:, 48:], task.extrinsics)
+    np.testing.assert_array_equal(obs[:, 48 + 15:], 0.0)  # no velocity before a step
+    task.step(np.zeros((2, 16), np.float32))
+    qpos, qvel = task.sim.qpos.copy(), task.sim.qvel.copy()
+    qvel[0, 16 + 5] = 3.0  # env 0 spins about z
+    task.sim.set_state(np.arange(2), qpos, qvel, ctrl=task.info["target"])
+    task.info["obj_pos"], task.info["obj_quat"] = qpos[:, 16:19].copy(), qpos[:, 19:23].copy()
+    out = task.step(np.zeros((2, 16), np.float32))
+    ext = task.extrinsics
+    np.testing.assert_allclose(out.next_obs[:, 48:], ext, atol=1e-6)
+    quat = task.sim.qpos[:, 19:23]
+    np.testing.assert_allclose(ext[:, 11:15], quat * np.sign(quat[:, :1]), atol=1e-6)
+    np.testing.assert_allclose(ext[:, 15:18], (task.sim.qpos[:, 16:19] - qpos[:, 16:19]) / task.dt, atol=1e-5)
+    assert ext[0, 20] == pytest.approx(task.object_angvel_z[0], rel=1e-5) and ext[0, 20] > 0.3
+    out = task.step(np.zeros((2, 16), np.float32))  # the time limit: both envs start over
+    assert out.truncated.all()
+    np.testing.assert_array_equal(out.obs[:, 48 + 15:], 0.0)
+    np.testing.assert_array_equal(task.extrinsics[:, 15:], 0.0)
+    task.close()
+
+
+def test_reset_press_offsets_the_targets_not_the_joints():
+    task = tasks.make("allegro_rotate", 3, seed=2, overrides={"reset_press": 0.25})
+    obs, _ = task.reset()
+    pose = task.sim.qpos[:, :16]
+    assert np.abs(pose - CANON).max() <= CONFIG.reset_pose_noise + 1e-9  # the joints at the noisy canonical pose
+    press = np.zeros(16)
+    press[[2, 3, 6, 7, 10, 11]] = 0.25  # index, middle, ring: medial and distal
+    np.testing.assert_allclose(task.info["target"] - pose, np.broadcast_to(press, (3, 16)), atol=1e-12)
+    np.testing.assert_allclose(obs[:, 32:48], task.info["target"] - CANON, atol=1e-6)
+    task.close()
+
+
 def test_bad_config_is_refused():
     with pytest.raises(ValueError, match="shapes"):
         tasks.make("allegro_rotate", 1, overrides={"shapes": ("sphere",)})

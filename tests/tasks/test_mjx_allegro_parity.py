@@ -26,7 +26,13 @@ with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx
 
 M = 2
-OVERRIDES = {"noise_level": 0.0, "shapes": ("box",), "episode_length": 100}
+# The privileged actor (object state in the extrinsics and the actor's observation): its columns are compared too.
+OVERRIDES = {"noise_level": 0.0, "shapes": ("box",), "episode_length": 100, "object_state_extrinsics": True,
+             "actor_extrinsics": True}
+# The MJX env's resets press (``reset_press``; the CPU task's state is mirrored, so the step is the same): with
+# the CPU task pressing too, the random walk before the step pressed the fingers into the object and the
+# float32 step drifted 1.5e-4 from MuJoCo's in the object's pose.
+PRESS = 0.25
 OPTS = {"xla_backend_optimization_level": 0}  # a third less XLA compile time; numerics unchanged
 
 
@@ -60,7 +66,7 @@ def _mirror(env, task):
 
 
 def test_mjx_matches_cpu_task():
-    env = mjx_allegro.make(tasks.allegro_rotate.AllegroRotateConfig(**OVERRIDES), M)
+    env = mjx_allegro.make(tasks.allegro_rotate.AllegroRotateConfig(**OVERRIDES, reset_press=PRESS), M)
     task, rng = _cpu_task()
     assert env.spec == task.spec
     assert task.unstable_count == 0
@@ -95,3 +101,5 @@ def test_mjx_matches_cpu_task():
     np.testing.assert_array_equal(np.asarray(out.obs[0]), np.asarray(out.next_obs[0]))
     assert not np.allclose(np.asarray(out.obs[1]), np.asarray(out.next_obs[1]))
     assert abs(float(new.params[1, 0]) - float(state.params[1, 0])) > 0  # a new object mass was drawn
+    press = tasks.allegro_rotate.press_offset(PRESS)
+    np.testing.assert_allclose(np.asarray(new.info["target"][1] - new.data.qpos[1, :16]), press, atol=1e-6)
