@@ -24,7 +24,8 @@ RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "ho
 # A privileged actor (the object's parameters, position, quaternion and velocities) whose reset targets press the
 # fingers on the object (reset_press). Dev VM, 1024 samples per update, deterministic evaluations (rad/s) at
 # 0.6M / 1.2M steps: seed 0 0.04 / 0.20 without the press, 0.14 / - with it; seed 1 0.01 / 0.04 without, 0.03 /
-# 0.16 with it; the blind actor reached at most 0.10 in 2.5M steps (README "In-hand rotation (Allegro)").
+# 0.16 with it; seed 2 0.003 / 0.007 with it; the blind actor reached at most 0.10 in 2.5M steps (README
+# "In-hand rotation (Allegro)").
 TASK_RECIPE = {"scale_object_linvel": 0.0, "scale_pose_diff": 0.0, "scale_torque": 0.0, "scale_work": 0.0,
                "object_state_extrinsics": True, "actor_extrinsics": True, "reset_press": 0.25}
 

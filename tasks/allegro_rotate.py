@@ -22,9 +22,10 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   to the nominal object: middle finger 0.2 mm, index / ring 5 mm away): with the largest object no hand
   geom penetrates it by more than 1.2 mm, and under zero actions no object fell (8 envs x 100 steps, the
   smallest and the largest size); a thumb rotated further in (0.6-1.0 rad) intersected the object and
-  pushed it off the palm. The targets start at the reset pose. The palm's contacts use its own low
-  friction (0.2, ``PALM_FRICTION``; the fingers' use the object's), so the fingers can turn an object
-  that rests on it.
+  pushed it off the palm. The targets start at the reset pose, the index / middle / ring medial and distal
+  ones ``reset_press`` rad past it (ours: the fingers press on the object's top edge from the first step).
+  The palm's contacts use its own low friction (0.2, ``PALM_FRICTION``; the fingers' use the object's), so
+  the fingers can turn an object that rests on it.
 * Objects, drawn per episode (each env simulates its own ``MjModel`` copy, whose object fields are
   rewritten at its reset; nothing is recompiled): shape uniform over ``config.shapes``; size scale
   U(0.85, 1.1) of the nominal cylinder (radius 0.03, half-height 0.025) / box (half-sides 0.026, 0.026,
