@@ -4,7 +4,8 @@
         --total_steps=2000 --logdir=runs/hgdagger_pick
 
 ``unilab_jax/hgdagger.py``: whole-episode demonstrations by the operator, a behaviour-cloned novice
-(``--demo_episodes``, ``--bc_steps`` gradient steps, ``--bc_weight_decay``), then ``--rounds`` rounds of
+(``--demo_episodes``, ``--bc_steps`` gradient steps, ``--bc_weight_decay``, ``--bc_ensemble`` networks acting
+their mean), then ``--rounds`` rounds of
 ``--episodes_per_round`` episodes in which the operator takes over when the novice leaves the safe region,
 drops the cube or stalls (``--operator_segment`` steps per takeover, ``--operator_stall_steps``), only the
 operator's segments joining the dataset (``--intervention_weight`` times each), and a refit
@@ -42,6 +43,7 @@ flags.DEFINE_integer("intervention_weight", 2, "times each operator row of a rou
 flags.DEFINE_bool("warm_start", True, "fine-tune the previous novice in each refit (else fresh parameters)")
 flags.DEFINE_bool("keep_best", False, "drop a refit whose evaluation falls below the kept novice's")
 flags.DEFINE_string("bc_hidden", "256,256", "behaviour-cloning MLP hidden sizes")
+flags.DEFINE_integer("bc_ensemble", 5, "networks of the novice (fitted from different seeds; it acts their mean)")
 TOTAL_STEPS = 20_000  # robot steps of the whole run (demonstrations, rounds, evaluations) without --total_steps
 
 
@@ -58,7 +60,8 @@ def validate():
                             max_env_steps=FLAGS.total_steps or TOTAL_STEPS, warm_start=FLAGS.warm_start,
                             refit_steps=FLAGS.refit_steps, intervention_weight=FLAGS.intervention_weight,
                             keep_best=FLAGS.keep_best,
-                            bc=BCConfig(hidden=hidden, steps=FLAGS.bc_steps, weight_decay=FLAGS.bc_weight_decay))
+                            bc=BCConfig(hidden=hidden, steps=FLAGS.bc_steps, weight_decay=FLAGS.bc_weight_decay,
+                                          ensemble=FLAGS.bc_ensemble))
     OperatorConfig(segment_steps=FLAGS.operator_segment, stall_steps=FLAGS.operator_stall_steps)
     return entries, config
 

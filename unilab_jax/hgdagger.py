@@ -27,7 +27,8 @@ Logged per phase (``metrics.jsonl`` / TensorBoard, step = robot steps so far): `
 ``hgdagger/intervention_rate`` and ``hgdagger/interventions`` (per episode of the round),
 ``hgdagger/round_success_rate`` (the gated episodes' successes, with the operator's help),
 ``hgdagger/bc_loss``, ``hgdagger/kept`` (1: this round's refit is the novice now),
-``hgdagger/kept_success_rate`` (the kept novice's evaluation), ``hgdagger/wall_s``.
+``hgdagger/kept_success_rate`` (the kept novice's evaluation), ``hgdagger/eval_steps`` (the evaluation's
+robot steps), ``hgdagger/wall_s``.
 
 A separate loop rather than an algorithm of the trainer: HG-DAgger is round-based (collect with a fixed
 novice, then refit on the whole aggregate), keeps only the operator's segments, and
@@ -163,7 +164,8 @@ class HGDagger:
             self._log(logger, {"hgdagger/round": 0, "eval/success_rate": evaluation.success_rate,
                                "eval/return": float(np.mean(evaluation.returns or [np.nan])),
                                "hgdagger/dataset_rows": len(data_obs), "hgdagger/operator_rows": len(data_obs),
-                               "hgdagger/demo_success_rate": demos.success_rate, "hgdagger/bc_loss": fit["loss"]})
+                               "hgdagger/demo_success_rate": demos.success_rate, "hgdagger/bc_loss": fit["loss"],
+                               "hgdagger/eval_steps": evaluation.steps})
             best = evaluation.success_rate
             refit = cfg.bc if cfg.refit_steps is None else dataclasses.replace(cfg.bc, steps=cfg.refit_steps)
             for r in range(1, cfg.rounds + 1):
@@ -186,7 +188,8 @@ class HGDagger:
                     "hgdagger/intervention_rate": float(np.mean(gated.rates or [np.nan])),
                     "hgdagger/interventions": float(np.mean(gated.takeovers or [np.nan])),
                     "hgdagger/round_success_rate": gated.success_rate, "hgdagger/bc_loss": fit["loss"],
-                    "hgdagger/kept": float(kept), "hgdagger/kept_success_rate": best})
+                    "hgdagger/kept": float(kept), "hgdagger/kept_success_rate": best,
+                    "hgdagger/eval_steps": evaluation.steps})
         finally:
             if logger is not None:
                 logger.close()

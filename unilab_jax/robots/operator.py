@@ -108,6 +108,8 @@ class ExpertOperator:
                 return policy_action, False
             self.last_reason = reason
             self.takeovers += 1
+            if hasattr(self.expert, "resync"):
+                self.expert.resync(obs)
             self.left = self.config.segment_steps
         self.operator_steps += 1
         if mode == "gate":
