@@ -6,11 +6,11 @@
 Each seed runs ``unilab_jax/hgdagger.py`` on ``--envs`` in-process simulated Frankas (unpaced: robot time
 is counted in steps, not measured) with the experiment's flags' meaning (``--demo_episodes``, ``--rounds``,
 ``--episodes_per_round``, ``--eval_episodes``, ``--ensemble``, ``--refit_steps``, ``--warm_start``,
-``--keep_best``, ``--intervention_weight``, ``--operator_segment``), then evaluates the novice it ends
-with (the kept one under ``--keep_best``) alone on ``--fresh_episodes`` episodes of robots seeded apart
-from the run's. Per seed: the success rate after the initial fit and after each round (``eval_episodes``
-each), the intervention rate per round, the fresh evaluation, and the robot time at 10 Hz in minutes, split
-into the demonstrations and gated rounds (the operator's data) and the evaluations.
+``--keep_best``, ``--intervention_weight``, ``--novice_time``, ``--operator_segment``), then evaluates the
+novice it ends with (the kept one under ``--keep_best``) alone on ``--fresh_episodes`` episodes of robots
+seeded apart from the run's. Per seed: the success rate after the initial fit and after each round
+(``eval_episodes`` each), the intervention rate per round, the fresh evaluation, and the robot time at 10 Hz
+in minutes, split into the demonstrations and gated rounds (the operator's data) and the evaluations.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def run_seed(args: argparse.Namespace, seed: int) -> dict:
     config = HGDaggerConfig(demo_episodes=args.demo_episodes, rounds=args.rounds,
                             episodes_per_round=args.episodes_per_round, eval_episodes=args.eval_episodes,
                             intervention_weight=args.intervention_weight, warm_start=args.warm_start,
-                            keep_best=args.keep_best, refit_steps=args.refit_steps,
+                            keep_best=args.keep_best, refit_steps=args.refit_steps, novice_time=args.novice_time,
                             bc=BCConfig(steps=args.bc_steps, ensemble=args.ensemble))
     t0 = time.perf_counter()
     task = tasks.make("robot_pick_place", args.envs, seed, {"operator_segment": args.operator_segment})
@@ -83,6 +83,7 @@ def main() -> None:
     p.add_argument("--warm_start", action=argparse.BooleanOptionalAction, default=False)
     p.add_argument("--keep_best", action=argparse.BooleanOptionalAction, default=False)
     p.add_argument("--intervention_weight", type=int, default=1)
+    p.add_argument("--novice_time", action=argparse.BooleanOptionalAction, default=False)
     p.add_argument("--operator_segment", type=int, default=20)
     p.add_argument("--out", default="")
     args = p.parse_args()

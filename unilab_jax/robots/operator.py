@@ -39,6 +39,7 @@ class OperatorConfig:
     mode: str = "gate"
     segment_steps: int = 20  # control steps the operator drives per takeover
     stall_steps: int = 15  # policy steps without progress before a takeover
+    watch: bool = True  # the expert's phase machine runs on the policy's steps too (a watching operator)
     stall_eps: float = 0.02  # progress: the episode's return so far rising above its best by at least this
     box: tuple[float, ...] = (0.3, -0.35, 0.0, 0.7, 0.28, 0.35)  # safe tcp region: (x, y, z) low, then high
 
@@ -105,6 +106,8 @@ class ExpertOperator:
         if mode == "gate" and self.left == 0:
             reason = self._trigger(obs)
             if not reason:
+                if self.config.watch:
+                    self.expert(obs)  # its phase follows what the policy achieves; the action is not used
                 return policy_action, False
             self.last_reason = reason
             self.takeovers += 1
