@@ -67,9 +67,10 @@ def test_operator_takes_over_when_the_cube_is_dropped():
 
 
 def test_operator_taking_over_a_carried_cube_carries_it_on():
-    """The expert's phase machine is where its last segment left it (here: never run, "approach"); at a
-    takeover it resyncs to the state, so a cube the policy carries between closed fingers stays gripped
-    (from "approach" it would open the gripper over it and teach the novice to drop it)."""
+    """The expert's phase machine follows the episode (here, watching the policy carry the cube, it saw no
+    phase's switch and is still in "approach"); at a takeover it resyncs to the state, so a cube the policy
+    carries between closed fingers stays gripped (from "approach" it would open the gripper over it and
+    teach the novice to drop it)."""
     op = ExpertOperator(SPEC, OperatorConfig(mode="gate", segment_steps=5, stall_steps=1))
     policy = np.zeros(7, np.float32)
     carried = _obs([0.5, 0.05, 0.15], obj=[0.5, 0.05, 0.14], opening=0.5)

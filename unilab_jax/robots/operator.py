@@ -10,8 +10,9 @@ policy acted on), then ``op.observe(reward)`` with the step's reward. Modes:
   progress (the episode's return so far has not risen above its best by ``stall_eps`` for ``stall_steps``
   steps; with the dense reward's potential-based shaping the return is the progress made); it then
   drives for ``segment_steps`` steps and hands control back. ``stall_steps`` start again at each hand-back.
-  The scripted expert's phase machine runs on across an episode's segments (it starts over by itself
-  when the cube is not where its phase expects it).
+  The scripted expert's phase machine runs on across an episode, on the policy's steps too (``watch``:
+  it sees the policy reach a phase's switch), and at a takeover it resyncs to the state (``resync``: a
+  cube held between closed fingers is carried on, not dropped by an earlier phase's open gripper).
 * ``always``: the operator drives every step (whole-episode demonstrations).
 
 Counters per episode: ``steps``, ``operator_steps``, ``takeovers``; ``rate`` = operator_steps / steps.
