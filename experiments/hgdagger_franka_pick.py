@@ -30,8 +30,8 @@ from absl import logging as absl_logging
 
 from unilab_jax.robot_cli import FLAGS, report_robots, robot_entries
 
-flags.DEFINE_integer("demo_episodes", 12, "operator demonstrations for the initial behaviour-cloned policy")
-flags.DEFINE_integer("rounds", 5, "HG-DAgger rounds (gated collection, aggregation, refit)")
+flags.DEFINE_integer("demo_episodes", 24, "operator demonstrations for the initial behaviour-cloned policy")
+flags.DEFINE_integer("rounds", 3, "HG-DAgger rounds (gated collection, aggregation, refit)")
 flags.DEFINE_integer("episodes_per_round", 32, "gated episodes per round")
 flags.DEFINE_integer("eval_episodes", 40, "episodes of each evaluation of the novice alone")
 flags.DEFINE_integer("operator_segment", 20, "control steps the operator drives per takeover")
