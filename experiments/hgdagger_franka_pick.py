@@ -4,13 +4,14 @@
         --total_steps=2000 --logdir=runs/hgdagger_pick
 
 ``unilab_jax/hgdagger.py``: whole-episode demonstrations by the operator, a behaviour-cloned novice
-(``--demo_episodes``, ``--bc_steps`` gradient steps, ``--bc_weight_decay``), then ``--rounds`` rounds of
+(``--demo_episodes``, ``--bc_steps`` gradient steps, ``--bc_weight_decay``, ``--bc_ensemble`` networks acting
+their mean), then ``--rounds`` rounds of
 ``--episodes_per_round`` episodes in which the operator takes over when the novice leaves the safe region,
 drops the cube or stalls (``--operator_segment`` steps per takeover, ``--operator_stall_steps``), only the
 operator's segments joining the dataset (``--intervention_weight`` times each), and a refit
 (``--refit_steps``, fine-tuning the previous novice unless ``--nowarm_start``; ``--keep_best`` drops a refit
 that evaluates worse); the novice is evaluated alone on ``--eval_episodes`` after every fit.
-``--total_steps`` (default 20000) caps the robot steps of the whole run; ``--seed``, ``--logdir``,
+``--total_steps`` (default 40000) caps the robot steps of the whole run; ``--seed``, ``--logdir``,
 ``--robots`` and ``--speed`` are the shared flags (``unilab_jax.cli``, ``unilab_jax.robot_cli``). The loop
 drives the task in this process (one env per robot of ``--robots``: a comma list or ``.toml`` inventory;
 ``sim:NAME`` robots are started here at ``--speed``, ``tcp://HOST:PORT`` robots are servers already
@@ -32,17 +33,19 @@ from unilab_jax.robot_cli import FLAGS, report_robots, robot_entries
 flags.DEFINE_integer("demo_episodes", 24, "operator demonstrations for the initial behaviour-cloned policy")
 flags.DEFINE_integer("rounds", 3, "HG-DAgger rounds (gated collection, aggregation, refit)")
 flags.DEFINE_integer("episodes_per_round", 32, "gated episodes per round")
-flags.DEFINE_integer("eval_episodes", 20, "episodes of each evaluation of the novice alone")
+flags.DEFINE_integer("eval_episodes", 40, "episodes of each evaluation of the novice alone")
 flags.DEFINE_integer("operator_segment", 20, "control steps the operator drives per takeover")
 flags.DEFINE_integer("operator_stall_steps", 15, "novice steps without reward progress before a takeover")
 flags.DEFINE_integer("bc_steps", 2000, "behaviour-cloning gradient steps of the initial fit")
-flags.DEFINE_integer("refit_steps", 1000, "gradient steps of each round's refit")
+flags.DEFINE_integer("refit_steps", 2000, "gradient steps of each round's refit")
 flags.DEFINE_float("bc_weight_decay", 1.0, "AdamW weight decay of every fit (0.1 gives a novice that never succeeds)")
-flags.DEFINE_integer("intervention_weight", 2, "times each operator row of a round enters the aggregate")
-flags.DEFINE_bool("warm_start", True, "fine-tune the previous novice in each refit (else fresh parameters)")
-flags.DEFINE_bool("keep_best", False, "drop a refit whose evaluation falls below the kept novice's")
+flags.DEFINE_integer("intervention_weight", 1, "times each operator row of a round enters the aggregate")
+flags.DEFINE_bool("warm_start", False, "fine-tune the previous novice in each refit (else fresh parameters)")
+flags.DEFINE_bool("keep_best", True, "drop a refit whose evaluation falls below the kept novice's")
 flags.DEFINE_string("bc_hidden", "256,256", "behaviour-cloning MLP hidden sizes")
-TOTAL_STEPS = 20_000  # robot steps of the whole run (demonstrations, rounds, evaluations) without --total_steps
+flags.DEFINE_bool("novice_time", False, "the novice reads the episode time (else its observation lacks it)")
+flags.DEFINE_integer("bc_ensemble", 5, "networks of the novice (fitted from different seeds; it acts their mean)")
+TOTAL_STEPS = 40_000  # robot steps of the whole run (demonstrations, rounds, evaluations) without --total_steps
 
 
 def validate():
@@ -57,8 +60,9 @@ def validate():
                             episodes_per_round=FLAGS.episodes_per_round, eval_episodes=FLAGS.eval_episodes,
                             max_env_steps=FLAGS.total_steps or TOTAL_STEPS, warm_start=FLAGS.warm_start,
                             refit_steps=FLAGS.refit_steps, intervention_weight=FLAGS.intervention_weight,
-                            keep_best=FLAGS.keep_best,
-                            bc=BCConfig(hidden=hidden, steps=FLAGS.bc_steps, weight_decay=FLAGS.bc_weight_decay))
+                            keep_best=FLAGS.keep_best, novice_time=FLAGS.novice_time,
+                            bc=BCConfig(hidden=hidden, steps=FLAGS.bc_steps, weight_decay=FLAGS.bc_weight_decay,
+                                          ensemble=FLAGS.bc_ensemble))
     OperatorConfig(segment_steps=FLAGS.operator_segment, stall_steps=FLAGS.operator_stall_steps)
     return entries, config
 

@@ -19,9 +19,9 @@ SPEC = RobotSpec(name="r", kind="franka", task="pick_place", proprio_dim=13, pri
                  image_shape=(64, 64, 3), control_hz=10.0, episode_length=100, max_delta_pos=0.03, max_delta_rot=0.25)
 
 
-def _obs(tcp, obj=(0.5, 0.05, 0.02)) -> dict[str, np.ndarray]:
-    """A pick-and-place observation: tcp pose, gripper, cube pose (identity orientation), bin position."""
-    p = np.concatenate([tcp, [0.0, 1.0, 0.0, 0.0], [1.0], obj, [1.0, 0.0, 0.0, 0.0], [0.48, -0.23, 0.0]])
+def _obs(tcp, obj=(0.5, 0.05, 0.02), opening=1.0) -> dict[str, np.ndarray]:
+    """A pick-and-place observation: tcp pose, gripper opening, cube pose (identity orientation), bin position."""
+    p = np.concatenate([tcp, [0.0, 1.0, 0.0, 0.0], [opening], obj, [1.0, 0.0, 0.0, 0.0], [0.48, -0.23, 0.0]])
     return {"privileged": p.astype(np.float32), "proprio": np.zeros(13, np.float32)}
 
 
@@ -64,6 +64,27 @@ def test_operator_takes_over_when_the_cube_is_dropped():
     action, by_op = op.act(dropped, policy)
     assert by_op and op.last_reason == "dropped"
     assert action.shape == (7,) and action[6] == -1.0  # the expert's first phase: gripper open above the cube
+
+
+def test_operator_taking_over_a_carried_cube_carries_it_on():
+    """The expert's phase machine follows the episode (here, watching the policy carry the cube, it saw no
+    phase's switch and is still in "approach"); at a takeover it resyncs to the state, so a cube the policy
+    carries between closed fingers stays gripped (from "approach" it would open the gripper over it and
+    teach the novice to drop it)."""
+    op = ExpertOperator(SPEC, OperatorConfig(mode="gate", segment_steps=5, stall_steps=1))
+    policy = np.zeros(7, np.float32)
+    carried = _obs([0.5, 0.05, 0.15], obj=[0.5, 0.05, 0.14], opening=0.5)
+    for _ in range(2):
+        assert not op.act(carried, policy)[1]
+        op.observe(0.0)
+    action, by_op = op.act(carried, policy)
+    # resynced to "lift", which at carrying height (0.15) moves on to "transfer" at once: gripper closed
+    assert by_op and op.last_reason == "stalled" and op.expert.phase == "transfer" and action[6] == 1.0
+    # Handed back and taken over again away from the cube (it fell): from above the cube, gripper open.
+    op.left = 0
+    op.since_progress = op.config.stall_steps
+    action, by_op = op.act(_obs([0.45, 0.0, 0.2]), policy)
+    assert by_op and op.expert.phase == "approach" and action[6] == -1.0
 
 
 def test_always_and_off_modes_and_config_checks():

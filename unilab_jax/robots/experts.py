@@ -60,6 +60,7 @@ class PickPlaceExpert:
     release_z = 0.11
     grasp_steps = 5
     held_dist = 0.03  # the cube counts as held within this distance of the tcp
+    held_opening = 0.85  # ... and with the gripper's opening (1: fully open) below this (fingers on the cube)
 
     def __init__(self, spec: RobotSpec):
         self.spec = spec
@@ -69,6 +70,18 @@ class PickPlaceExpert:
         self.phase = "approach"
         self.count = 0
         self.yaw = None
+
+    def resync(self, obs: dict[str, np.ndarray]) -> None:
+        """Taking over from someone else mid-episode: the phase the state shows. A cube between closed fingers
+        is carried on (``lift``); otherwise a descent or grasp already above the cube goes on, anything else
+        starts from above the cube (an earlier phase would open the gripper over a carried cube)."""
+        tcp, _, opening, state = _split(obs)
+        obj = state[:3]
+        if np.linalg.norm(obj - tcp) < self.held_dist and opening < self.held_opening:
+            if self.phase not in ("lift", "transfer", "lower"):
+                self.phase = "lift"
+        elif not (self.phase in ("descend", "grasp") and np.linalg.norm(tcp[:2] - obj[:2]) < 0.01):
+            self.phase, self.yaw = "approach", None
 
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         tcp, quat, _, state = _split(obs)

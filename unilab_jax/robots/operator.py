@@ -10,8 +10,9 @@ policy acted on), then ``op.observe(reward)`` with the step's reward. Modes:
   progress (the episode's return so far has not risen above its best by ``stall_eps`` for ``stall_steps``
   steps; with the dense reward's potential-based shaping the return is the progress made); it then
   drives for ``segment_steps`` steps and hands control back. ``stall_steps`` start again at each hand-back.
-  The scripted expert's phase machine runs on across an episode's segments (it starts over by itself
-  when the cube is not where its phase expects it).
+  The scripted expert's phase machine runs on across an episode, on the policy's steps too (``watch``:
+  it sees the policy reach a phase's switch), and at a takeover it resyncs to the state (``resync``: a
+  cube held between closed fingers is carried on, not dropped by an earlier phase's open gripper).
 * ``always``: the operator drives every step (whole-episode demonstrations).
 
 Counters per episode: ``steps``, ``operator_steps``, ``takeovers``; ``rate`` = operator_steps / steps.
@@ -39,6 +40,7 @@ class OperatorConfig:
     mode: str = "gate"
     segment_steps: int = 20  # control steps the operator drives per takeover
     stall_steps: int = 15  # policy steps without progress before a takeover
+    watch: bool = True  # the expert's phase machine runs on the policy's steps too (a watching operator)
     stall_eps: float = 0.02  # progress: the episode's return so far rising above its best by at least this
     box: tuple[float, ...] = (0.3, -0.35, 0.0, 0.7, 0.28, 0.35)  # safe tcp region: (x, y, z) low, then high
 
@@ -105,9 +107,13 @@ class ExpertOperator:
         if mode == "gate" and self.left == 0:
             reason = self._trigger(obs)
             if not reason:
+                if self.config.watch:
+                    self.expert(obs)  # its phase follows what the policy achieves; the action is not used
                 return policy_action, False
             self.last_reason = reason
             self.takeovers += 1
+            if hasattr(self.expert, "resync"):
+                self.expert.resync(obs)
             self.left = self.config.segment_steps
         self.operator_steps += 1
         if mode == "gate":
