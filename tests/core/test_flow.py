@@ -142,3 +142,20 @@ def test_config_checks_flow_steps():
         sacflow.SACFlowConfig(flow_steps=0)
     with pytest.raises(ValueError, match="flow_steps"):
         sacflow.SACFlowConfig(flow_steps=sacflow.MAX_FLOW_STEPS + 1)
+
+
+def test_gate_gradient_is_finite_for_any_logit():
+    """A gate logit far below zero (a drifting network output) must give a zero gate and a finite gradient; the
+    quotient form 1 / (1 + exp(-x)) gave NaN below about -89 in float32, which made SAC Flow's weights NaN."""
+    jax = pytest.importorskip("jax")
+    jnp = jax.numpy
+    raw = [-1e4, -300.0, -100.0, -89.0, -20.0, 0.0, 3.0, 100.0, 1e4]
+    want = np.asarray([_sigmoid(x) if abs(x) < 700 else float(x > 0) for x in raw])
+    logits = jnp.asarray(raw, jnp.float32)
+    for values in (flow.sigmoid(logits), flow.sigmoid(np.asarray(raw, np.float32))):
+        np.testing.assert_allclose(np.asarray(values), want, rtol=1e-6, atol=1e-30)
+    a, cand = jnp.full((9,), 0.3, jnp.float32), jnp.full((9,), -2.0, jnp.float32)
+    grads = jax.grad(lambda g, c, a: flow.gated_velocity(a, c, g).sum(), argnums=(0, 1, 2))(logits, cand, a)
+    for g in grads:
+        assert np.isfinite(np.asarray(g)).all()
+    assert float(grads[0][0]) == 0.0 and float(grads[1][0]) == 0.0  # a shut gate passes nothing back

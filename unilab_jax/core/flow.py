@@ -33,9 +33,13 @@ _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
 def sigmoid(x: Any) -> Any:
-    """Logistic function ``1 / (1 + exp(-x))`` on any backend."""
+    """Logistic function ``1 / (1 + exp(-x))`` on any backend, from ``z = exp(-|x|)`` (never overflows):
+    ``1 / (1 + z)`` for x >= 0, ``z / (1 + z)`` below. Same values, and a gradient that stays finite for any
+    logit: the plain quotient's is inf / inf = NaN in float32 once ``exp(-x)`` overflows (x below about -89),
+    which is how a drifting gate logit turned SAC Flow's weights NaN."""
     xp = shim.namespace(x)
-    return 1.0 / (1.0 + xp.exp(-x))
+    z = xp.exp(-xp.abs(x))
+    return xp.where(x >= 0, 1.0 / (1.0 + z), z / (1.0 + z))
 
 
 def gated_velocity(a: Any, candidate: Any, gate_logit: Any) -> Any:
