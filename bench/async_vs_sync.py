@@ -134,7 +134,6 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
     from unilab_jax.runtime.pool import WorkerPool
     from unilab_jax.runtime.weights import WeightPublisher
     from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
-    from unilab_jax.xp import tree_leaves
 
     serial = mode == "sync"
     overrides = {"robots": tuple(addresses), "episode_length": args.episode_length, **IMAGE_TASKS.get(policy, {})}
@@ -150,11 +149,11 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
                       replay_capacity=COMMON["replay_capacity"], serial=serial)
     rng = np.random.default_rng(args.seed)
     phases = {"collect_s": 0.0, "train_s": 0.0, "sync_s": 0.0}
-    large = sum(np.asarray(a).nbytes for a in tree_leaves(first)) >= PREFETCH_MIN_BYTES
     with pool:
         pool.start()
         pool.publish(first, learner.version)
-        publisher = WeightPublisher(pool.publish) if not serial and large and not args.publish_inline else None
+        publisher = (WeightPublisher(pool.publish) if not serial and not args.publish_inline
+                     and pool.weights.nbytes >= PREFETCH_MIN_BYTES else None)
         t_start = time.perf_counter()
         t_window = t_end = None
         updates = episodes0 = 0

@@ -289,7 +289,7 @@ class Trainer:
         # Large weights of an asynchronous run are written by a background thread (the learner updates on);
         # lock-step, serial and Ray runs publish inline.
         publisher = (WeightPublisher(pool.publish) if replay and isinstance(pool, WorkerPool) and not run.serial
-                     and sum(np.asarray(a).nbytes for a in tree_leaves(weights)) >= PREFETCH_MIN_BYTES else None)
+                     and pool.weights.nbytes >= PREFETCH_MIN_BYTES else None)
         ckpt = Checkpointer(self.ckpt_dir)
         restore_signals = stop_on_signals(stop)
         next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
