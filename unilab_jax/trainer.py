@@ -41,7 +41,7 @@ from unilab_jax.core import rlpd
 from unilab_jax.fields import TRAJECTORY_FIELDS, prior_fields, replay_fields
 from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
 from unilab_jax.runtime.ring import StopRequested
-from unilab_jax.xp import tree_leaves
+from unilab_jax.xp import end_thread, tree_leaves
 
 log = logging.getLogger(__name__)
 
@@ -503,17 +503,25 @@ class LearnerThread:
             import mlx.core as mx
 
             mx.set_default_stream(mx.new_stream(mx.default_device()))
-        while True:
-            job = self._jobs.get()
-            if job is None:
-                return
-            fn, args, future = job
-            try:
-                future.set_result(fn(*args))
-            except BaseException as e:  # handed to whoever waits on the future
-                future.set_exception(e)
-            with self._lock:
-                self._pending -= 1
+        try:
+            while True:
+                job = self._jobs.get()
+                if job is None:
+                    return
+                fn, args, future = job
+                error: BaseException | None = None
+                try:
+                    result = fn(*args)
+                except BaseException as e:  # handed to whoever waits on the future
+                    error = e
+                with self._lock:  # not busy once the caller can see the result
+                    self._pending -= 1
+                if error is None:
+                    future.set_result(result)
+                else:
+                    future.set_exception(error)
+        finally:
+            end_thread()
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
         future: Future = Future()
@@ -529,8 +537,11 @@ class LearnerThread:
         return wait_result(self.submit(fn, *args), stop, grace_s)
 
     def close(self) -> None:
-        """Ends the thread after the calls queued so far (without waiting for them)."""
+        """Ends the thread after the calls queued so far; waits for that unless a call is still running
+        (a stopped run does not wait for an abandoned update)."""
         self._jobs.put(None)
+        if not self.busy:
+            self._thread.join(timeout=60)
 
 
 def wait_result(future: Future, stop: threading.Event, grace_s: float = 0.0) -> Any:
@@ -610,6 +621,12 @@ class _Prefetcher:
             self._thread.start()
 
     def _loop(self) -> None:
+        try:
+            self._produce_until_stopped()
+        finally:
+            end_thread()
+
+    def _produce_until_stopped(self) -> None:
         try:
             while not self._stop.is_set():
                 item = self._produce(self._stop)

@@ -23,6 +23,8 @@ its array library and adds the few things the standard lacks, with the same mean
   ``relu``, ``elu``, ``one_hot``, and ``conv2d(x [B, H, W, Cin], w [kh, kw, Cin, Cout], stride)`` (VALID
   padding, channels last; differentiable on jax and mlx);
 * conversion: ``asnumpy(x)`` and ``from_numpy(x)``;
+* threads: ``end_thread()`` frees the calling thread's per-thread backend state (MLX's streams); call it
+  last in a thread that ran backend work, then join the thread;
 * jax only: ``with xp.compute_dtype("bfloat16"):`` makes ``xp.matmul`` of float32 arrays traced in that
   block multiply in bfloat16 with float32 accumulation and float32 results (forward and backward), so
   everything else (norms, softmax, losses, optimizer) stays float32 (``learner_jax``'s ``compute_dtype``).
@@ -36,13 +38,14 @@ from __future__ import annotations
 import contextlib
 import importlib
 import math
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 
-__all__ = ["Backend", "get", "namespace", "register_backend", "available", "tree_map", "tree_leaves"]
+__all__ = ["Backend", "get", "namespace", "register_backend", "available", "end_thread", "tree_map", "tree_leaves"]
 
 _FACTORIES: dict[str, Callable[[], Backend]] = {}
 _INSTANCES: dict[str, Backend] = {}
@@ -205,6 +208,9 @@ class Backend:
 
     def value_and_grad(self, fn: Callable, has_aux: bool = False) -> Callable:
         raise NotImplementedError(f"the {self.name} backend has no automatic differentiation")
+
+    def end_thread(self) -> None:
+        """Frees the calling thread's state in this backend (none unless the backend keeps some)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -416,6 +422,20 @@ def register_backend(name: str, factory: Callable[[], Backend]) -> None:
 
 register_backend("numpy", NumpyBackend)
 register_backend("jax", JaxBackend)
+
+
+def end_thread() -> None:
+    """The last call of a thread that ran backend work: frees its per-thread state while Python is alive.
+
+    MLX keeps streams per thread. Left to the thread's C++ exit destructors, they can run while the
+    main thread finalizes the interpreter; a destructor that then waits for the GIL is unwound by
+    ``PyThread_exit_thread`` through a noexcept frame, and the process aborts ("terminate called
+    without an active exception", exit -6) after the run's work is done. Join the thread afterwards.
+    """
+    if "mlx.core" in sys.modules:  # MLX may have run in this thread without the shim (mx calls of its own)
+        get("mlx")
+    for backend in list(_INSTANCES.values()):
+        backend.end_thread()
 
 
 def available() -> list[str]:

@@ -97,5 +97,12 @@ class MlxBackend(_xp.Backend):
         """
         return mx.value_and_grad(fn)
 
+    def end_thread(self) -> None:
+        # mx.clear_streams destroys the streams this thread created; it comes with the releases whose
+        # streams are per thread.
+        clear = getattr(mx, "clear_streams", None)
+        if clear is not None:
+            clear()
+
 
 _xp.register_backend("mlx", MlxBackend)
