@@ -73,7 +73,7 @@ def main() -> None:
     p.add_argument("--seeds", default="0,1,2")
     p.add_argument("--envs", type=int, default=4)
     p.add_argument("--demo_episodes", type=int, default=24)
-    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--episodes_per_round", type=int, default=32)
     p.add_argument("--eval_episodes", type=int, default=40)
     p.add_argument("--fresh_episodes", type=int, default=80)

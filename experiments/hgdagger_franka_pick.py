@@ -9,8 +9,8 @@ their mean), then ``--rounds`` rounds of
 ``--episodes_per_round`` episodes in which the operator takes over when the novice leaves the safe region,
 drops the cube or stalls (``--operator_segment`` steps per takeover, ``--operator_stall_steps``), only the
 operator's segments joining the dataset (``--intervention_weight`` times each), and a refit
-(``--refit_steps``, fine-tuning the previous novice unless ``--nowarm_start``; ``--keep_best`` drops a refit
-that evaluates worse); the novice is evaluated alone on ``--eval_episodes`` after every fit.
+(``--refit_steps``, from fresh parameters unless ``--warm_start`` fine-tunes the previous novice; ``--keep_best``
+drops a refit that evaluates worse); the novice is evaluated alone on ``--eval_episodes`` after every fit.
 ``--total_steps`` (default 40000) caps the robot steps of the whole run; ``--seed``, ``--logdir``,
 ``--robots`` and ``--speed`` are the shared flags (``unilab_jax.cli``, ``unilab_jax.robot_cli``). The loop
 drives the task in this process (one env per robot of ``--robots``: a comma list or ``.toml`` inventory;
@@ -31,7 +31,7 @@ from absl import logging as absl_logging
 from unilab_jax.robot_cli import FLAGS, report_robots, robot_entries
 
 flags.DEFINE_integer("demo_episodes", 24, "operator demonstrations for the initial behaviour-cloned policy")
-flags.DEFINE_integer("rounds", 3, "HG-DAgger rounds (gated collection, aggregation, refit)")
+flags.DEFINE_integer("rounds", 5, "HG-DAgger rounds (gated collection, aggregation, refit)")
 flags.DEFINE_integer("episodes_per_round", 32, "gated episodes per round")
 flags.DEFINE_integer("eval_episodes", 40, "episodes of each evaluation of the novice alone")
 flags.DEFINE_integer("operator_segment", 20, "control steps the operator drives per takeover")
