@@ -10,8 +10,11 @@ via Velocity-Reparameterized Sequential Modeling" (arXiv:2509.25756). Design cho
   gradients through it stay bounded. The gate's output bias starts at ``gate_bias`` (open gates), the
   candidate's output layer small, as in the paper's code.
 * Entropy: the rollout is a chain of K + 1 Gaussians whose log-densities sum (plus the tanh log-Jacobian):
-  that log-probability replaces SAC's in the actor, critic-target and temperature losses; the target
-  entropy is ``target_entropy_per_dim * |A|`` as in SAC, with automatic temperature.
+  that log-probability replaces SAC's in the actor, critic-target and temperature losses, with automatic
+  temperature toward ``target_entropy_per_dim * |A|``. The default per-dimension target is 0, as in the
+  authors' public code (SAC's ``-|A|`` times 0), not SAC's -1: what is estimated is the entropy of the whole
+  chain (the intermediate actions' Gaussians included), not the action's, so SAC's calibration of ``-|A|``
+  does not carry over.
 * Step times are a one-hot of the step index (the K steps are discrete), which also lets ``act`` read K
   from the published weights' shapes. Workers draw ``(MAX_FLOW_STEPS + 1) |A|`` standard normals per env
   step (``noise_dim``); a K-step actor reads the first ``(K + 1) |A|``.
@@ -56,10 +59,12 @@ __all__ = ["SYNC", "BUFFER", "IMAGES", "Config", "SACFlowConfig", "extras", "act
 
 @dataclasses.dataclass(frozen=True)
 class SACFlowConfig(SACConfig):
-    """SAC's fields plus the flow's: ``flow_steps`` (K Euler steps), ``gate_bias`` (initial gate logit)."""
+    """SAC's fields plus the flow's: ``flow_steps`` (K Euler steps), ``gate_bias`` (initial gate logit); the
+    entropy target per action dimension defaults to 0 (see the module's docstring)."""
 
     flow_steps: int = 4
     gate_bias: float = 5.0
+    target_entropy_per_dim: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
