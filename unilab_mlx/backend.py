@@ -1,11 +1,14 @@
 """The MLX backend of ``unilab_jax.xp``.
 
 MLX already provides most Python array API names; this adapter supplies the rest and the shim's
-extras (keyed random numbers, value_and_grad, compile, scan). Registered on import.
+extras (keyed random numbers, value_and_grad, compile, scan). Registered on import, with an exit hook that
+frees the main thread's MLX streams before the interpreter finalizes (MLX asks every thread to call
+``mx.clear_streams()`` before it ends, the main thread included; other threads: ``xp.end_thread``).
 """
 
 from __future__ import annotations
 
+import atexit
 from collections.abc import Callable
 from typing import Any
 
@@ -98,11 +101,16 @@ class MlxBackend(_xp.Backend):
         return mx.value_and_grad(fn)
 
     def end_thread(self) -> None:
-        # mx.clear_streams destroys the streams this thread created; it comes with the releases whose
-        # streams are per thread.
-        clear = getattr(mx, "clear_streams", None)
-        if clear is not None:
-            clear()
+        _clear_streams()
+
+
+def _clear_streams() -> None:
+    """``mx.clear_streams()``: destroys the streams the calling thread created (the releases whose streams are
+    per thread have it)."""
+    clear = getattr(mx, "clear_streams", None)
+    if clear is not None:
+        clear()
 
 
 _xp.register_backend("mlx", MlxBackend)
+atexit.register(_clear_streams)

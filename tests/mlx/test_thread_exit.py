@@ -73,3 +73,21 @@ def test_end_thread_leaves_other_threads_streams_alone():
     worker.start()
     worker.join()
     assert (mx.ones((2, 2)) * 2).sum().item() == 8.0
+
+
+def test_the_main_thread_frees_its_streams_at_exit():
+    """Importing the shim's MLX backend registers an exit hook that runs ``mx.clear_streams()`` in the main
+    thread before the interpreter finalizes (MLX asks it of every thread, the main one included)."""
+    script = """
+import mlx.core as mx
+original = mx.clear_streams
+mx.clear_streams = lambda: (print("cleared", flush=True), original())
+from unilab_jax import xp
+xp.get("mlx")
+mx.eval(mx.ones((8, 8)) * 2)
+print("done", flush=True)
+"""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    res = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.split() == ["done", "cleared"], (res.stdout, res.stderr)
