@@ -622,12 +622,6 @@ class _Prefetcher:
 
     def _loop(self) -> None:
         try:
-            self._produce_until_stopped()
-        finally:
-            end_thread()
-
-    def _produce_until_stopped(self) -> None:
-        try:
             while not self._stop.is_set():
                 item = self._produce(self._stop)
                 if item is None:
@@ -641,6 +635,8 @@ class _Prefetcher:
         except BaseException as e:  # surfaced to the learner thread (unless we are stopping)
             if not self._stop.is_set():
                 self._queue.put(e)
+        finally:
+            end_thread()
 
     def get(self, stop: threading.Event | None = None) -> tuple[dict, dict]:
         """The next item; raises :class:`StopRequested` when ``stop`` is set while waiting for it."""

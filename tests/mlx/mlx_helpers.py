@@ -1,5 +1,5 @@
-"""Shared by the MLX parity tests: per-leaf relative errors between two state pytrees, and a script run
-in a fresh interpreter that must finish without importing jax, jaxlib or optax."""
+"""Shared by the MLX tests: per-leaf relative errors between two state pytrees, scripts run in a fresh
+interpreter, and the check that one finishes without importing jax, jaxlib or optax."""
 
 import os
 import subprocess
@@ -19,12 +19,17 @@ print('ok')
 """
 
 
-def assert_runs_without_jax(script: str) -> None:
-    """``script`` (which must ``import sys``) then the check, with the checkout on the path."""
+def run_python(code: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """``code`` in a fresh interpreter from the checkout's root, with the checkout on the path (text output)."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
-    res = subprocess.run([sys.executable, "-c", script + _CHECK], cwd=ROOT, env=env, capture_output=True, text=True,
-                         timeout=300)
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def assert_runs_without_jax(script: str) -> None:
+    """``script`` (which must ``import sys``) then the check, with the checkout on the path."""
+    res = run_python(script + _CHECK)
     assert res.returncode == 0 and "ok" in res.stdout, f"exit {res.returncode}\n{res.stdout}\n{res.stderr}"
 
 

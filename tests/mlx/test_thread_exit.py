@@ -8,20 +8,16 @@ of 20 runs on the dev VM, so a few runs show a regression.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import threading
-from pathlib import Path
 
 import pytest
 
 mx = pytest.importorskip("mlx.core")
 
+from mlx_helpers import run_python  # noqa: E402
+
 from unilab_jax import xp  # noqa: E402
 from unilab_jax.trainer import LearnerThread  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[2]
 
 # The main thread and the learner thread both compute; the script ends right after close().
 SCRIPT = """
@@ -40,11 +36,8 @@ print("done")
 
 
 def test_process_exits_cleanly_after_mlx_learner_thread():
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
     for attempt in range(6):
-        res = subprocess.run([sys.executable, "-c", SCRIPT], cwd=ROOT, env=env, capture_output=True, text=True,
-                             timeout=120)
+        res = run_python(SCRIPT, timeout=120)
         assert res.returncode == 0 and "done" in res.stdout, (
             f"attempt {attempt}: exit {res.returncode}\n{res.stdout}\n{res.stderr}")
 
@@ -87,7 +80,5 @@ xp.get("mlx")
 mx.eval(mx.ones((8, 8)) * 2)
 print("done", flush=True)
 """
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
-    res = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    res = run_python(script, timeout=120)
     assert res.returncode == 0 and res.stdout.split() == ["done", "cleared"], (res.stdout, res.stderr)
