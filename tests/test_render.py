@@ -52,3 +52,29 @@ def test_tasks_render_the_env_asked_for():
         assert r["shape"] == [72, 96, 3] and r["dtype"] == "uint8", (name, r)
         assert min(r["std"]) > 3, (name, r)  # something drawn, not a blank image
         assert r["diff"] > 0.3, (name, r)  # each frame shows its own env's state (measured: 0.9 to 16)
+
+
+def _headless_choice(monkeypatch, libraries: set[str], preset: str | None = None) -> str | None:
+    """MUJOCO_GL after ``prefer_headless`` on Linux, before mujoco's import, with only ``libraries`` findable."""
+    import ctypes.util
+
+    from unilab_jax.robots import gl
+
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delitem(sys.modules, "mujoco", raising=False)
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: f"lib{name}.so" if name in libraries else None)
+    if preset is None:
+        monkeypatch.delenv("MUJOCO_GL", raising=False)
+    else:
+        monkeypatch.setenv("MUJOCO_GL", preset)
+    gl.prefer_headless()
+    return os.environ.get("MUJOCO_GL")
+
+
+def test_headless_backend_only_where_its_library_is(monkeypatch):
+    # A backend whose library is missing makes `import mujoco` itself fail (a state-policy evaluation through
+    # unilab_jax.play crashed so on a GPU machine without libEGL): choose one only where it can load.
+    assert _headless_choice(monkeypatch, {"EGL", "OSMesa"}) == "egl"
+    assert _headless_choice(monkeypatch, {"OSMesa"}) == "osmesa"
+    assert _headless_choice(monkeypatch, set()) is None
+    assert _headless_choice(monkeypatch, set(), preset="glfw") == "glfw"  # the user's choice stands

@@ -8,6 +8,7 @@ libgl1-mesa-dri + libopengl0 (Mesa's software rasteriser works); ``osmesa`` need
 
 from __future__ import annotations
 
+import ctypes.util
 import os
 import subprocess
 import sys
@@ -50,9 +51,20 @@ def find_gl_backend(candidates: tuple[str, ...] = CANDIDATES) -> tuple[str | Non
     return None, reasons
 
 
+# MUJOCO_GL backend -> the shared library it loads when mujoco is imported (a backend whose library is missing
+# makes ``import mujoco`` itself fail, rendering or not).
+LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
+
+
 def prefer_headless() -> None:
     """On Linux, ``MUJOCO_GL=egl`` unless the variable is already set: offscreen rendering without a display
-    (a GPU driver's EGL, or Mesa's software one on CPU-only machines). Only has an effect before mujoco is
-    imported, so callers run it first (``unilab_jax.play`` on import, the CLI when ``--video_every`` is set)."""
-    if sys.platform.startswith("linux") and "mujoco" not in sys.modules:
-        os.environ.setdefault("MUJOCO_GL", "egl")
+    (a GPU driver's EGL, or Mesa's software one on CPU-only machines); ``osmesa`` where only OSMesa is
+    installed; nothing where neither library is, so that mujoco still imports and only rendering fails (with
+    the renderer's own error). Only has an effect before mujoco is imported, so callers run it first
+    (``unilab_jax.play`` on import, the CLI when ``--video_every`` is set)."""
+    if not sys.platform.startswith("linux") or "mujoco" in sys.modules or "MUJOCO_GL" in os.environ:
+        return
+    for backend in CANDIDATES:
+        if ctypes.util.find_library(LIBRARIES[backend]) is not None:
+            os.environ["MUJOCO_GL"] = backend
+            return
