@@ -22,7 +22,9 @@ bytes of a large model (a VLA-sized actor) through the weight channel; the worke
 (SAC Flow, K = 8 steps, 1024x1024x1024 velocity network: a large policy's update cost).
 
 Metrics (RLinf-USER's two, over the whole measured window after ``--warmup_s``): collection seconds per
-episode = window wall seconds / episodes completed per robot, and training seconds per update = window
+episode = window wall seconds / episodes collected per robot (env steps / ``--episode_length``: counting only
+completed episodes rounds a short window's 5-6 episodes per robot by up to one, ~20%; that count is kept as
+``collection_s_per_episode_completed``), and training seconds per update = window
 wall seconds / learner updates (U gradient steps each); plus the phase split of the sync pipeline and the
 speed-ups (sync / async). JSON with machine info under bench/results/.
 """
@@ -156,11 +158,12 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
                      and pool.weights.nbytes >= PREFETCH_MIN_BYTES else None)
         t_start = time.perf_counter()
         t_window = t_end = None
-        updates = episodes0 = 0
+        updates = episodes0 = steps0 = 0
         while True:
             now = time.perf_counter()
             if t_window is None and now - t_start >= args.warmup_s and pool.replay_size() >= learner.config.batch_size:
-                t_window, updates, episodes0 = now, 0, pool.stats()["episodes"]
+                stats = pool.stats()
+                t_window, updates, episodes0, steps0 = now, 0, stats["episodes"], stats["env_steps"]
                 phases = dict.fromkeys(phases, 0.0)
             if t_window is not None and now - t_window >= args.seconds:
                 t_end = now
@@ -192,13 +195,15 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
                 if updates % args.publish_every == 0:
                     (publisher.submit if publisher is not None else pool.publish)(learner.weights(), learner.version)
                     phases["sync_s"] += time.perf_counter() - t1
-        episodes = pool.stats()["episodes"] - episodes0
+        stats = pool.stats()
+        episodes, steps = stats["episodes"] - episodes0, stats["env_steps"] - steps0
         if publisher is not None:
             publisher.close()
     window = t_end - t_window
-    per_robot = episodes / len(addresses)
-    return {"mode": mode, "policy": policy, "window_s": window, "episodes": episodes, "updates": updates,
-            "collection_s_per_episode": window / per_robot if per_robot else float("inf"),
+    per_robot = steps / args.episode_length / len(addresses)  # episodes' worth of steps: no whole-episode rounding
+    return {"mode": mode, "policy": policy, "window_s": window, "episodes": episodes, "env_steps": steps,
+            "updates": updates, "collection_s_per_episode": window / per_robot if per_robot else float("inf"),
+            "collection_s_per_episode_completed": window / (episodes / len(addresses)) if episodes else float("inf"),
             "training_s_per_update": window / updates if updates else float("inf"),
             "gradient_steps_per_update": learner.config.updates_per_call, **phases}
 
