@@ -206,6 +206,8 @@ def test_command_sizes_heterogeneous_runs_per_config():
     assert "--envs_per_worker=32" in flags("fastsac_async", ["--envs_per_worker", "32"])
     # Off-policy and Go2 / G1 configs evaluate 64 episodes (the falls bound allows one), PPO 32.
     assert "--eval_envs=64" in flags("go2_flashsac") and "--eval_envs=64" in flags("g1_fastsac")
+    # the MJX baselines are judged on as many episodes as the off-policy runs they are compared with
+    assert "--eval_envs=64" in flags("mjx_ppo") and "--eval_envs=64" in flags("fastsac_async")
     assert "--eval_envs=32" in flags("ppo_lockstep") and "--eval_envs=16" in flags("g1_fastsac", ["--eval_envs", "16"])
     assert flags("g1_fastsac")[1].endswith("experiments/fastsac_g1.py") and "--utd_mode=free" in flags("go2_flashsac")
     mjx = flags("mjx_ppo", ["--max_seconds", "100"])
