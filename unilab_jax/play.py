@@ -5,7 +5,8 @@ the CPU with numpy (the training-time worker policy), prints the return and leng
 on locomotion tasks), and renders env 0 with ``mujoco.Renderer`` into an mp4 (imageio + imageio-ffmpeg).
 
 Headless rendering: ``MUJOCO_GL`` must be chosen before mujoco is imported; on Linux this module sets it to
-``egl`` unless it is already set. EGL runs on a GPU's driver or, on CPU-only machines, on Mesa's software
+``egl`` unless it is already set (``osmesa`` where only that library is found, nothing where neither is:
+``robots.gl.prefer_headless``). EGL runs on a GPU's driver or, on CPU-only machines, on Mesa's software
 rasteriser (Debian/Ubuntu: ``apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0``). Set
 ``MUJOCO_GL=osmesa`` (needs libosmesa6) to use OSMesa instead.
 
