@@ -13,7 +13,8 @@ batch and weights:
   are written by a background thread, as the trainer does; ``--publish_inline`` writes them in the loop).
 * ``sync`` (in turn): collect one episode on every robot (the same worker code, run in this process),
   then train ``utd x`` the new transitions, then sync the weights, then collect again; the robots wait
-  while the learner trains and the weights travel.
+  while the learner trains and the weights travel. ``--utd=1,2,4`` measures it at each ratio against one
+  async run: the two metrics trade through the sync pipeline's training share (README).
 
 The published weights carry ``--sync_mb`` MB of ballast beside the policy, so every weight sync moves the
 bytes of a large model (a VLA-sized actor) through the weight channel; the worker reads each new version
@@ -70,7 +71,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--publish_inline", action="store_true",
                     help="async: the learner writes each version itself (default: as the trainer, a background "
                          "thread writes weights of PREFETCH_MIN_BYTES and more)")
-    ap.add_argument("--utd", type=float, default=1.0, help="sync: gradient steps per collected transition")
+    ap.add_argument("--utd", default="1", help="sync: gradient steps per collected transition; a comma list runs the "
+                    "sync pipeline once per ratio against one async run (the async learner trains back to back)")
     ap.add_argument("--batch_size", type=int, default=256)
     ap.add_argument("--platform", default="jax", choices=("jax", "mlx"))
     ap.add_argument("--seed", type=int, default=0)
@@ -78,11 +80,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = ap.parse_args(argv)
     args.policies = [p for p in args.policies.split(",") if p]
     args.modes = [m for m in args.modes.split(",") if m]
+    try:
+        args.utd = [float(u) for u in str(args.utd).split(",") if u]
+    except ValueError:
+        ap.error(f"--utd: comma-separated numbers, got {args.utd!r}")
     bad = [p for p in args.policies if p not in POLICIES] + [m for m in args.modes if m not in ("async", "sync")]
     if bad or not args.policies or not args.modes:
         ap.error(f"unknown or empty --policies/--modes {bad}; policies: {sorted(POLICIES)}, modes: async, sync")
     if (args.robots < 1 or not args.speed > 0 or args.seconds <= 0 or args.sync_mb < 0 or args.episode_length < 1
-            or args.utd <= 0 or args.batch_size < 1):
+            or not args.utd or min(args.utd) <= 0 or args.batch_size < 1):
         ap.error("--robots, --speed, --seconds, --episode_length, --utd, --batch_size must be positive, --sync_mb >= 0")
     return args
 
@@ -90,12 +96,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 class Learner:
     """The registry's learner of a policy, its weights with the sync ballast, and timed updates."""
 
-    def __init__(self, policy: str, spec, args: argparse.Namespace):
+    def __init__(self, policy: str, spec, args: argparse.Namespace, utd: float):
         from unilab_jax import algos, nets
 
         name, overrides = POLICIES[policy]
         self.module = algos.get(name)
-        self.config = self.module.Config(**{**COMMON, **overrides, "batch_size": args.batch_size, "utd": args.utd})
+        self.config = self.module.Config(**{**COMMON, **overrides, "batch_size": args.batch_size, "utd": utd})
         self.learner = algos.make_learner(name, args.platform, self.config, spec)
         self.platform = args.platform
         if args.platform == "jax":
@@ -132,7 +138,8 @@ def _batch(pool, learner: Learner, rng: np.random.Generator, serial: bool) -> di
     return {k: rows[k].reshape(u, b, *rows[k].shape[1:]) for k in replay_fields(pool.spec)}
 
 
-def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) -> dict:
+def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace, utd: float | None = None) -> dict:
+    """One measured window of ``mode`` (``utd``: the sync pipeline's ratio; None for async)."""
     from unilab_jax.runtime.pool import WorkerPool
     from unilab_jax.runtime.weights import WeightPublisher
     from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
@@ -144,7 +151,7 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
     probe = tasks.make("robot_pick_place", 1, args.seed, overrides)  # the spec (claims one robot, releases it)
     spec = probe.spec
     probe.close()
-    learner = Learner(policy, spec, args)
+    learner = Learner(policy, spec, args, utd or 1.0)
     first = learner.weights()
     pool = WorkerPool("robot_pick_place", overrides, num_workers=1, envs_per_worker=len(addresses),
                       algo_module=learner.module.__name__, weight_template=first,
@@ -201,11 +208,24 @@ def run(mode: str, policy: str, addresses: list[str], args: argparse.Namespace) 
             publisher.close()
     window = t_end - t_window
     per_robot = steps / args.episode_length / len(addresses)  # episodes' worth of steps: no whole-episode rounding
-    return {"mode": mode, "policy": policy, "window_s": window, "episodes": episodes, "env_steps": steps,
+    return {"mode": mode, "policy": policy, "utd": utd, "window_s": window, "episodes": episodes, "env_steps": steps,
             "updates": updates, "collection_s_per_episode": window / per_robot if per_robot else float("inf"),
             "collection_s_per_episode_completed": window / (episodes / len(addresses)) if episodes else float("inf"),
             "training_s_per_update": window / updates if updates else float("inf"),
             "gradient_steps_per_update": learner.config.updates_per_call, **phases}
+
+
+def speedups(results: list[dict]) -> list[dict]:
+    """One row per sync run (policy, its utd): sync / async collection seconds per episode and training seconds
+    per update, against the same policy's async run (none without one)."""
+    rows = []
+    for s in (r for r in results if r["mode"] == "sync"):
+        a = next((r for r in results if r["policy"] == s["policy"] and r["mode"] == "async"), None)
+        if a is not None:
+            rows.append({"policy": s["policy"], "utd": s["utd"],
+                         "collection": s["collection_s_per_episode"] / a["collection_s_per_episode"],
+                         "training": s["training_s_per_update"] / a["training_s_per_update"]})
+    return rows
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -218,22 +238,19 @@ def main(argv: list[str] | None = None) -> None:
         image = IMAGE_TASKS.get(policy, {})
         with inventory.Inventory(entries, "pick_place", args.speed, seed=args.seed, cameras=image.get("cameras", ()),
                                  image_size=image.get("image_size", 64)) as inv:
-            for mode in args.modes:
-                r = run(mode, policy, list(inv.addresses), args)
+            runs = [(m, u) for m in args.modes for u in ([None] if m == "async" else args.utd)]
+            for mode, utd in runs:
+                r = run(mode, policy, list(inv.addresses), args, utd)
                 results.append(r)
-                print(f"{policy:14s} {mode:5s}  collection {r['collection_s_per_episode']:7.2f} s/episode  "
+                label = mode if utd is None else f"{mode} utd {utd:g}"
+                print(f"{policy:14s} {label:12s}  collection {r['collection_s_per_episode']:7.2f} s/episode  "
                       f"training {r['training_s_per_update']:7.3f} s/update  ({r['episodes']} episodes, "
                       f"{r['updates']} updates in {r['window_s']:.0f} s)", flush=True)
-    speedups = {}
-    for policy in args.policies:
-        by_mode = {r["mode"]: r for r in results if r["policy"] == policy}
-        if {"async", "sync"} <= set(by_mode):
-            a, s = by_mode["async"], by_mode["sync"]
-            speedups[policy] = {"collection": s["collection_s_per_episode"] / a["collection_s_per_episode"],
-                                "training": s["training_s_per_update"] / a["training_s_per_update"]}
-            print(f"{policy}: async vs sync {speedups[policy]['collection']:.2f}x collection, "
-                  f"{speedups[policy]['training']:.2f}x training per update")
-    out = {"args": vars(args), "machine": machine_info(), "results": results, "speedups": speedups}
+    rows = speedups(results)
+    for r in rows:
+        print(f"{r['policy']} (sync utd {r['utd']:g}): async vs sync {r['collection']:.2f}x collection, "
+              f"{r['training']:.2f}x training per update")
+    out = {"args": vars(args), "machine": machine_info(), "results": results, "speedups": rows}
     os.makedirs(os.path.dirname(os.path.join(REPO, args.out)), exist_ok=True)
     with open(os.path.join(REPO, args.out), "w") as f:
         json.dump(out, f, indent=1, default=float)
