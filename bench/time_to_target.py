@@ -87,9 +87,10 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "g1_fastsac": {**_OFFPOLICY, "script": "experiments/fastsac_g1.py", "return_target": False,
                    "flags": ["--utd_mode=free"]},
     "mjx_ppo": {"kind": "mjx", "sync": "lockstep", "script": "experiments/ppo_go1_mjx.py", "eval_every": 10_000_000,
-                "eval_envs": 64, "return_target": True, "flags": ["--num_envs=8192"]},
+                "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True, "flags": ["--num_envs=8192"]},
     "mjx_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
-                    "eval_every": 2_000_000, "eval_envs": 64, "return_target": True, "flags": ["--num_envs=1024"]},
+                    "eval_every": 2_000_000, "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True,
+                    "flags": ["--num_envs=1024"]},
 }
 SOURCES = ("tasks/go1_joystick.py", "tasks/mjx_go1.py", "tasks/walking.py", "tasks/go2_joystick.py", "tasks/g1_walk.py",
            "tasks/physics.py", "unilab_jax/trainer.py", "unilab_jax/metrics.py",
