@@ -3,7 +3,7 @@
     MENAGERIE_ROOT=../shared/robots python bench/hgdagger_reliability.py --seeds 0,1,2,3 \\
         --out bench/results/local/phase2/hgdagger_reliability.json
 
-Each seed runs ``unilab_jax/hgdagger.py`` on ``--envs`` in-process simulated Frankas (unpaced: robot time
+Each seed runs ``unilab_jax/training/hgdagger.py`` on ``--envs`` in-process simulated Frankas (unpaced: robot time
 is counted in steps, not measured) with the experiment's flags' meaning (``--demo_episodes``, ``--rounds``,
 ``--episodes_per_round``, ``--eval_episodes``, ``--ensemble``, ``--refit_steps``, ``--warm_start``,
 ``--keep_best``, ``--intervention_weight``, ``--novice_time``, ``--operator_segment``), then evaluates the
@@ -25,7 +25,7 @@ import numpy as np
 
 import tasks
 from unilab_jax.algos.imitation.bc import BCConfig
-from unilab_jax.hgdagger import HGDagger, HGDaggerConfig
+from unilab_jax.training.hgdagger import HGDagger, HGDaggerConfig
 
 CONTROL_HZ = 10.0
 FRESH_SEED_OFFSET = 1000  # the fresh evaluation's robots: seed + this (the run's robots use seed)

@@ -5,7 +5,7 @@
 For each recipe of ``experiments/`` that trains on Go1 / Go2 / G1 (the CPU-worker scripts; HORA gives two
 actors, teacher and student), the actor is built at the recipe's sizes (the JAX learner's published weights
 at init; latency does not depend on the values; the HORA student's adaptation module at ``hora_cli``'s
-defaults, 30 frames), exported with ``unilab_jax.export`` and timed on single observations ``[1, obs_dim]``:
+defaults, 30 frames), exported with ``unilab_jax.apps.export`` and timed on single observations ``[1, obs_dim]``:
 
 * ``numpy``: the generated numpy module (``Policy()(obs)``);
 * ``onnx``: onnxruntime, ``intra_op_num_threads=1``, ``inter_op_num_threads=1``, sequential execution;
@@ -115,7 +115,7 @@ def measure(script: str, algo: str, task: str, recipe: dict, task_recipe: dict, 
     """One recipe's row: export its actor both ways and time the three paths on one observation."""
     import onnxruntime as ort
 
-    from unilab_jax import export
+    from unilab_jax.apps import export
 
     module, weights, obs_dim = published_weights(algo, task, recipe, task_recipe)
     graph, out = export.actor_graph(algo, weights, obs_dim)

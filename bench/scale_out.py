@@ -64,7 +64,7 @@ def machine_info() -> dict:
 def learner(args: argparse.Namespace) -> list[dict]:
     import jax
 
-    from unilab_jax import sharding
+    from unilab_jax.training import sharding
 
     module = algos.get("fastsac")
     rows = []

@@ -20,7 +20,7 @@ best return, throughput, the whole evaluation curve)::
 Configurations (``CONFIGS``): ``ppo_lockstep`` / ``appo_async`` / ``fastsac_async`` / ``flashsac_async`` /
 ``fastsac_hold`` (Go1), ``go2_flashsac`` (Go2) and ``g1_fastsac`` (G1) run the heterogeneous runtime (CPU
 MuJoCo workers, ``--num_workers x --envs_per_worker``, learner on the accelerator); ``mjx_ppo`` /
-``mjx_fastsac`` the GPU-resident MJX loop (``unilab_jax/mjx_train.py``) on Go1. Every run evaluates
+``mjx_fastsac`` the GPU-resident MJX loop (``unilab_jax/training/mjx.py``) on Go1. Every run evaluates
 ``--eval_envs`` episodes (the configuration's, else 32) with the deterministic policy, with the same task,
 reward and episode length; with 64 episodes the falls bound allows one fall, with 32 none.
 
@@ -93,8 +93,8 @@ CONFIGS: dict[str, dict[str, Any]] = {
                     "flags": ["--num_envs=1024"]},
 }
 SOURCES = ("tasks/go1_joystick.py", "tasks/mjx_go1.py", "tasks/walking.py", "tasks/go2_joystick.py", "tasks/g1_walk.py",
-           "tasks/physics.py", "unilab_jax/trainer.py", "unilab_jax/metrics.py",
-           "unilab_jax/mjx_train.py", "unilab_jax/algos/ppo/ppo.py", "unilab_jax/algos/ppo/learner_jax.py",
+           "tasks/physics.py", "unilab_jax/training/trainer.py", "unilab_jax/metrics.py",
+           "unilab_jax/training/mjx.py", "unilab_jax/algos/ppo/ppo.py", "unilab_jax/algos/ppo/learner_jax.py",
            "unilab_jax/algos/offpolicy/fastsac.py", "unilab_jax/algos/offpolicy/learner_jax.py",
            "unilab_jax/runtime/pool.py", "unilab_jax/runtime/worker.py")
 

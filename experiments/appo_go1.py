@@ -5,7 +5,7 @@
 
 from ppo_go1 import RECIPE  # same hyperparameters as PPO; only the sync mode and targets differ
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 if __name__ == "__main__":

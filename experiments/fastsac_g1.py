@@ -14,7 +14,7 @@ joint (the bounded log-std head at its midpoint).
 
 from fastsac_go1 import RECIPE as GO1_RECIPE  # FastSAC's recipe; only the support differs
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {**GO1_RECIPE, "v_min": -2.0, "v_max": 3.0}

@@ -12,7 +12,7 @@ about [-3, 3.3]; [-3, 4] keeps a 0.07 atom spacing.
 
 from fastsac_go1 import RECIPE as GO1_RECIPE  # FastSAC's recipe; only the support differs
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {**GO1_RECIPE, "v_min": -3.0, "v_max": 4.0}

@@ -10,7 +10,7 @@ decay 0.1, temperature starting at 0.001. The support is sized for Go1's return 
 policy std 0.22 per joint (see sac_go1.py): small, as Go1's clipped reward needs.
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 8192,

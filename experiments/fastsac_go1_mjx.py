@@ -8,7 +8,7 @@ transitions); with 1024 envs each iteration is one env step of every env followe
 
 from fastsac_go1 import RECIPE
 
-from unilab_jax.mjx_cli import run_mjx_experiment
+from unilab_jax.apps.mjx_cli import run_mjx_experiment
 
 if __name__ == "__main__":
     run_mjx_experiment(algo="fastsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,

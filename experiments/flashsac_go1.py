@@ -14,7 +14,7 @@ Raw 0.97-discounted returns lie in [0, ~1]; [-0.5, 1.5] gives a 0.02 atom spacin
 at 0.001 and the initial policy std is ~0.2 per joint (small, as Go1's clipped reward needs).
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (256, 256, 256), "critic_hidden": (512, 512, 512), "batch_size": 8192,

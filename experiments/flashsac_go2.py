@@ -15,7 +15,7 @@ per-step reward is r / rms * 0.01 and normalised returns are ~mean(r) / rms(r): 
 
 from flashsac_go1 import RECIPE as GO1_RECIPE  # FlashSAC's recipe; discount, reward scaling and support differ
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {**GO1_RECIPE, "gamma": 0.99, "normalize_rewards": True, "v_min": -2.0, "v_max": 4.0}

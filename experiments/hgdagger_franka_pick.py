@@ -3,7 +3,7 @@
     python experiments/hgdagger_franka_pick.py --robots=sim:franka_emika_panda --speed=20 \\
         --total_steps=2000 --logdir=runs/hgdagger_pick
 
-``unilab_jax/hgdagger.py``: whole-episode demonstrations by the operator, a behaviour-cloned novice
+``unilab_jax/training/hgdagger.py``: whole-episode demonstrations by the operator, a behaviour-cloned novice
 (``--demo_episodes``, ``--bc_steps`` gradient steps, ``--bc_weight_decay``, ``--bc_ensemble`` networks acting
 their mean), then ``--rounds`` rounds of
 ``--episodes_per_round`` episodes in which the operator takes over when the novice leaves the safe region,
@@ -12,7 +12,7 @@ operator's segments joining the dataset (``--intervention_weight`` times each), 
 (``--refit_steps``, from fresh parameters unless ``--warm_start`` fine-tunes the previous novice; ``--keep_best``
 drops a refit that evaluates worse); the novice is evaluated alone on ``--eval_episodes`` after every fit.
 ``--total_steps`` (default 40000) caps the robot steps of the whole run; ``--seed``, ``--logdir``,
-``--robots`` and ``--speed`` are the shared flags (``unilab_jax.cli``, ``unilab_jax.robot_cli``). The loop
+``--robots`` and ``--speed`` are the shared flags (``unilab_jax.apps.cli``, ``unilab_jax.apps.robot_cli``). The loop
 drives the task in this process (one env per robot of ``--robots``: a comma list or ``.toml`` inventory;
 ``sim:NAME`` robots are started here at ``--speed``, ``tcp://HOST:PORT`` robots are servers already
 running); the operator runs beside the robot clients, so remote robots work the same. Logs:
@@ -28,7 +28,7 @@ import sys
 from absl import app, flags
 from absl import logging as absl_logging
 
-from unilab_jax.robot_cli import FLAGS, report_robots, robot_entries
+from unilab_jax.apps.robot_cli import FLAGS, report_robots, robot_entries
 
 flags.DEFINE_integer("demo_episodes", 24, "operator demonstrations for the initial behaviour-cloned policy")
 flags.DEFINE_integer("rounds", 5, "HG-DAgger rounds (gated collection, aggregation, refit)")
@@ -51,8 +51,8 @@ TOTAL_STEPS = 40_000  # robot steps of the whole run (demonstrations, rounds, ev
 def validate():
     """The robot inventory and the loop's configuration; ``ValueError`` names a bad flag."""
     from unilab_jax.algos.imitation.bc import BCConfig
-    from unilab_jax.hgdagger import HGDaggerConfig
     from unilab_jax.robots.operator import OperatorConfig
+    from unilab_jax.training.hgdagger import HGDaggerConfig
 
     entries = robot_entries()
     hidden = tuple(int(h) for h in FLAGS.bc_hidden.split(","))
@@ -77,8 +77,8 @@ def main(argv):
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     import tasks
-    from unilab_jax.hgdagger import HGDagger
     from unilab_jax.robots import inventory
+    from unilab_jax.training.hgdagger import HGDagger
 
     with inventory.Inventory(entries, "pick_place", FLAGS.speed, seed=FLAGS.seed) as inv:
         report_robots(inv.addresses, "pick_place")

@@ -7,7 +7,7 @@ estimates the base velocity (removed from the frames) and a contrastive latent.
 
 from ppo_go1 import RECIPE as PPO_RECIPE
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 # Frames: Go1's 48-dim observation without the measured body-frame linear velocity (columns 0-2), as

@@ -1,6 +1,6 @@
 """HORA on Allegro in-hand rotation, its own task: a teacher that reads the object's parameters (mass,
 centre of mass, friction, size, shape) and state (position, orientation, velocities), then a student that
-infers them from 30 frames of proprioceptive history; one command (see unilab_jax/hora_cli.py). The two
+infers them from 30 frames of proprioceptive history; one command (see unilab_jax/apps/hora_cli.py). The two
 are compared on rotation rate.
 
     python experiments/hora_allegro.py --num_workers=15 --envs_per_worker=64 --teacher_steps=60000000 \\
@@ -11,7 +11,7 @@ are compared on rotation rate.
 from ppo_allegro_rotate import RECIPE as PPO_RECIPE
 from ppo_allegro_rotate import TASK_RECIPE as PPO_TASK_RECIPE
 
-from unilab_jax.hora_cli import run_hora
+from unilab_jax.apps.hora_cli import run_hora
 
 # Rotation and fall terms only and the object's state in the extrinsics, as the PPO recipe; but the frames stay
 # proprioceptive (the student's history must not hold the extrinsics): the teacher sees them through z only.

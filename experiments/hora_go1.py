@@ -1,5 +1,5 @@
 """HORA on Go1 joystick flat: a teacher that reads the domain-randomisation parameters, then a student
-that infers them from 30 frames of proprioceptive history; one command (see unilab_jax/hora_cli.py).
+that infers them from 30 frames of proprioceptive history; one command (see unilab_jax/apps/hora_cli.py).
 
     python experiments/hora_go1.py --num_workers=15 --envs_per_worker=128 --teacher_steps=40000000 \\
         --student_steps=10000000 --logdir=runs/hora_go1
@@ -10,7 +10,7 @@ Sized for a 16-core H100 host (15 workers x 128 envs, as above; the flag default
 
 from ppo_go1 import RECIPE as PPO_RECIPE
 
-from unilab_jax.hora_cli import run_hora
+from unilab_jax.apps.hora_cli import run_hora
 
 # Go1's extrinsics (tasks/go1_joystick.py): floor friction, joint friction loss, armature, torso COM,
 # link masses, torso mass, default-pose offset and (enabled here, +-10%) motor strength: 66 numbers.

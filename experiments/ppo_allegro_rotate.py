@@ -9,7 +9,7 @@ beside eval/return.
         --logdir=runs/ppo_allegro
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 
 # HORA's PPO (rl_games): 512-256-128 ELU networks, gamma 0.99, lambda 0.95, 5 epochs, KL-adaptive learning
 # rate, no entropy bonus, unit initial action std (the action scale 1/24 keeps that gentle).

@@ -6,7 +6,7 @@ Sized for the 2-core dev VM: the flag defaults, 2 workers x 32 envs (``--num_wor
 the machine instead).
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 
 RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "horizon": 32, "learning_rate": 1e-3,
           "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.0, "gamma": 0.98, "desired_kl": 0.01}

@@ -12,7 +12,7 @@ Evaluations report ``eval/clip_completion`` (clips played from their start to th
 termination) and ``eval/body_pos_error`` (m).
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "horizon": 24,

@@ -3,7 +3,7 @@
     python experiments/ppo_go1.py --num_workers=16 --envs_per_worker=64 --logdir=runs/ppo_go1
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (512, 256, 128), "horizon": 24,

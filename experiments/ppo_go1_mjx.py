@@ -9,7 +9,7 @@ per iteration (163,840 transitions).
 
 from ppo_go1 import RECIPE
 
-from unilab_jax.mjx_cli import run_mjx_experiment
+from unilab_jax.apps.mjx_cli import run_mjx_experiment
 
 MJX_RECIPE = {**RECIPE, "horizon": 20, "num_epochs": 4, "num_minibatches": 32}
 

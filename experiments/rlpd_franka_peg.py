@@ -11,10 +11,10 @@ and the front camera's last 3 frames (``--observation=images``, the default: uin
 robots, a DrQ encoder trained by the critic; ``--observation=state``: the robot's privileged object state instead,
 the state-based comparison). Reward: 1 on
 success only (the episode then ends), as a physical robot's success detector gives it (``--dense_reward``
-adds the shaped term). Flags and recipe: ``unilab_jax.robot_cli``.
+adds the shaped term). Flags and recipe: ``unilab_jax.apps.robot_cli``.
 """
 
-from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
+from unilab_jax.apps.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("rlpd", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,

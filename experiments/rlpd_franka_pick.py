@@ -7,7 +7,7 @@ sampling, the critic ensemble, images and proprioception in the policy's observa
 success-only reward) on the pick-and-place task.
 """
 
-from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
+from unilab_jax.apps.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("rlpd", "robot_pick_place", MANIPULATION_RECIPE, default_total_steps=36_000,

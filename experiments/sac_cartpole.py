@@ -14,7 +14,7 @@ target networks than SAC's default (tau 0.02 instead of 0.005) and lr 1e-3 make 
 steps instead of ~8k.
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 
 RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
           "publish_every": 32, "utd": 0.0125, "learning_starts": 5_000, "replay_capacity": 1_000_000,

@@ -4,10 +4,10 @@
 
 Same networks, observations (``--observation=images`` by default, or ``state``), reward (success only), batch
 and update-to-data ratio as ``rlpd_franka_peg.py``; SAC's twin critics and no demonstrations. Flags and recipe:
-``unilab_jax.robot_cli``.
+``unilab_jax.apps.robot_cli``.
 """
 
-from unilab_jax.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
+from unilab_jax.apps.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
 
 if __name__ == "__main__":
     run_robot_experiment("sac", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,

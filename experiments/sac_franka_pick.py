@@ -4,14 +4,14 @@
         --speed=20 --total_steps=3000 --logdir=runs/sac_pick
 
 Flags beside the shared ones (``--robots``, ``--speed``, ``--dense_reward``; robot assignment and evaluation):
-``unilab_jax.robot_cli``. A robot lost mid-run stops its worker until the robot (or another free one) answers
+``unilab_jax.apps.robot_cli``. A robot lost mid-run stops its worker until the robot (or another free one) answers
 again; the other workers go on, and the interrupted step writes no transition. The policy sees the robot's
 proprioception, its kind and its place in the inventory; the critic also the privileged object state.
 Learning shows while it trains: ``episode/success_rate`` is the success rate of the workers' recent
 (stochastic) episodes.
 """
 
-from unilab_jax.robot_cli import run_robot_experiment
+from unilab_jax.apps.robot_cli import run_robot_experiment
 
 RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 128, "updates_per_call": 8,
           "publish_every": 8, "utd": 0.5, "learning_starts": 500, "replay_capacity": 200_000,

@@ -12,7 +12,7 @@ midpoint), below PPO's 0.37: large initial noise keeps every step's clipped rewa
 never starts (bench/results/README.md).
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 4096,

@@ -9,7 +9,7 @@ Sized for one GPU with a few cores: one gradient step per transition makes the l
 few environments suffice (``--utd_mode=hold`` holds the ratio on any machine). Not run to convergence here.
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 
 RECIPE = {"actor_hidden": (256, 256), "critic_hidden": (256, 256), "batch_size": 256, "updates_per_call": 8,
           "publish_every": 8, "utd": 1.0, "learning_starts": 10_000, "replay_capacity": 1_000_000,

@@ -8,7 +8,7 @@ pendulum -150 to -200. Measured there at 20k env steps (~4.5k gradient steps, ``
 networks, tau 0.02), seeds 0-5: evaluation returns -143 to -167, ~7 s of CPU (tests/test_gym_training.py).
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 
 RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
           "publish_every": 32, "utd": 0.25, "learning_starts": 2_000, "replay_capacity": 200_000,

@@ -10,7 +10,7 @@ SAC's objective and automatic temperature (``unilab_jax/algos/offpolicy/sacflow.
 
 from sac_franka_pick import RECIPE
 
-from unilab_jax.robot_cli import run_robot_experiment
+from unilab_jax.apps.robot_cli import run_robot_experiment
 
 FLOW_RECIPE = {**RECIPE, "flow_steps": 4}
 

@@ -13,7 +13,7 @@ actors (3e-4), more exploration noise (0.2) or gamma 0.99 reached 150 about as o
 sac_cartpole.py); tau 0.02 (instead of 0.005) propagates values ~4x faster.
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 
 RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
           "publish_every": 32, "utd": 0.015, "learning_starts": 5_000, "replay_capacity": 1_000_000,

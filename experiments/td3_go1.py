@@ -9,7 +9,7 @@ critic ensemble of two on one GPU). Exploration std 0.2: the low end of FastTD3'
 [0.2, 0.8] -- with Go1's clipped reward large noise keeps every step's reward at 0 (ppo_go1.py).
 """
 
-from unilab_jax.cli import run_experiment
+from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 8192,

@@ -121,7 +121,7 @@ class Task(abc.ABC):
 
     def render_scene(self, env: int = 0) -> tuple[Any, Any]:
         """``(mujoco.MjModel, mujoco.MjData)`` of env ``env`` in its current state (kinematics computed), for
-        ``mujoco.Renderer`` (``unilab_jax.play``, training clips). Tasks that step a ``BatchedSim`` in
+        ``mujoco.Renderer`` (``unilab_jax.apps.play``, training clips). Tasks that step a ``BatchedSim`` in
         ``self.sim`` get it from there; a task without one overrides this or cannot be rendered."""
         sim = getattr(self, "sim", None)
         if sim is None:

@@ -135,7 +135,7 @@ class GymTask(base.Task):
                             {"reward": reward.copy()})
 
     def render_scene(self, env: int = 0) -> tuple[Any, Any]:
-        """(model, data) of env ``env`` for ``mujoco.Renderer`` (``unilab_jax.play``): Gymnasium's MuJoCo
+        """(model, data) of env ``env`` for ``mujoco.Renderer`` (``unilab_jax.apps.play``): Gymnasium's MuJoCo
         environments only. A render-only MjData gets the env's full state and its kinematics (``mj_forward``),
         so rendering never touches the simulation."""
         import mujoco

@@ -28,7 +28,7 @@ import numpy as np
 from tasks import allegro_rotate as ar
 from tasks import base
 from tasks.go1_joystick import sensor_index
-from tasks.mjx_go1 import StepOut, finish_transition, forward, physics_step, reset_in_batches, restart_episodes
+from tasks.mjx_go1 import MjxStepOut, finish_transition, forward, physics_step, reset_in_batches, restart_episodes
 
 with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints a notice when the optional warp is absent
     from mujoco import mjx
@@ -37,7 +37,7 @@ GEOM_FIELDS = ("geom_size", "geom_pos", "geom_aabb", "geom_rbound", "geom_fricti
 BODY_FIELDS = ("body_mass", "body_inertia", "body_ipos")
 
 
-class EnvState(NamedTuple):
+class AllegroMjxState(NamedTuple):
     """Batched state of ``num_envs`` environments (every leaf has the env axis first)."""
 
     data: Any  # mjx.Data
@@ -53,7 +53,8 @@ class EnvState(NamedTuple):
 
 
 class AllegroRotateMjx:
-    """``reset(key) -> EnvState``; ``step(state, action) -> (EnvState, StepOut)``; pure and jit-able."""
+    """``reset(key) -> AllegroMjxState``; ``step(state, action) -> (AllegroMjxState, MjxStepOut)``; pure and
+    jit-able."""
 
     def __init__(self, config: ar.AllegroRotateConfig, num_envs: int, reset_batch: int = 0):
         c = config
@@ -150,16 +151,16 @@ class AllegroRotateMjx:
         return ar.observe(jp, jv, pos, quat, tau, info["target"], zero, zero, params,
                           self._noise(key, jp.shape[0]), self.consts, self.config)
 
-    def reset(self, key: jax.Array) -> EnvState:
+    def reset(self, key: jax.Array) -> AllegroMjxState:
         n = self.num_envs
         k_reset, k_obs, k_state = jax.random.split(key, 3)
         data, fields, params, info = self._reset_rows(k_reset, self.base_fields(n))
         obs, cobs = self._observe(data, info, params, k_obs)
-        return EnvState(data=data, model_fields=fields, params=params, info=info, steps=jnp.zeros((n,), jnp.int32),
-                        obs=obs, critic_obs=cobs, episode_return=jnp.zeros((n,)),
-                        episode_length=jnp.zeros((n,), jnp.int32), key=k_state)
+        return AllegroMjxState(data=data, model_fields=fields, params=params, info=info,
+                               steps=jnp.zeros((n,), jnp.int32), obs=obs, critic_obs=cobs,
+                               episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state)
 
-    def step(self, state: EnvState, action: jax.Array) -> tuple[EnvState, StepOut]:
+    def step(self, state: AllegroMjxState, action: jax.Array) -> tuple[AllegroMjxState, MjxStepOut]:
         """One control step of every env (``action`` clipped to [-1, 1], NaN -> 0); ended envs auto-reset."""
         a = jnp.clip(jnp.nan_to_num(action.astype(jnp.float32), nan=0.0), -1.0, 1.0)
         target = ar.next_targets(state.info["target"], a, self.config.action_scale, self.lower, self.upper)
@@ -181,7 +182,7 @@ class AllegroRotateMjx:
                                      obs=obs, critic_obs=cobs)
         return new_state, out._replace(obs=obs, critic_obs=cobs)
 
-    def transition(self, state: EnvState, data: Any) -> tuple[EnvState, StepOut]:
+    def transition(self, state: AllegroMjxState, data: Any) -> tuple[AllegroMjxState, MjxStepOut]:
         """Observation, reward, end flags and bookkeeping from the post-physics ``data`` (``state.info["target"]``
         already the applied targets), before any auto-reset. The parity test calls it on data from ``forward``."""
         c, n = self.config, self.num_envs

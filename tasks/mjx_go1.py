@@ -1,7 +1,7 @@
 """``go1_joystick_flat`` on MJX: the same MDP as the CPU task, stepped on the accelerator under ``jax.jit``.
 
 The GPU-resident baseline (MuJoCo Playground / IsaacLab style) against which the heterogeneous runtime is
-measured (``unilab_jax/mjx_train.py``, ``bench/time_to_target.py``). Everything that defines the task comes
+measured (``unilab_jax/training/mjx.py``, ``bench/time_to_target.py``). Everything that defines the task comes
 from ``tasks/go1_joystick.py``:
 
 * Model: the same ``build_spec(config)`` MjSpec model (pyramidal cones, feet-only contacts, sensors),
@@ -62,7 +62,7 @@ DR_FIELDS = ("geom_friction", "dof_frictionloss", "dof_armature", "body_ipos", "
              "actuator_gainprm", "actuator_biasprm")
 
 
-class EnvState(NamedTuple):
+class Go1MjxState(NamedTuple):
     """Batched state of ``num_envs`` environments (a pytree; every leaf has the env axis first)."""
 
     data: Any  # mjx.Data
@@ -78,8 +78,8 @@ class EnvState(NamedTuple):
     key: jax.Array
 
 
-class StepOut(NamedTuple):
-    """``tasks.base.StepOut`` plus the finished episodes' return/length (valid where an episode ended)."""
+class MjxStepOut(NamedTuple):
+    """``tasks.base.MjxStepOut`` plus the finished episodes' return/length (valid where an episode ended)."""
 
     obs: jax.Array
     critic_obs: jax.Array
@@ -157,15 +157,15 @@ def mask_unstable(data: Any, next_obs: jax.Array, next_cobs: jax.Array, reward: 
 
 
 def finish_transition(state: Any, data: Any, steps: jax.Array, done: jax.Array, next_obs: jax.Array,
-                      next_cobs: jax.Array, reward: jax.Array, scaled: dict, episode_length: int) -> StepOut:
+                      next_cobs: jax.Array, reward: jax.Array, scaled: dict, episode_length: int) -> MjxStepOut:
     """The end of a control step shared by the MJX tasks (before any auto-reset): ``mask_unstable``, the end
     flags (termination wins; divergence and ``steps >= episode_length`` truncate) and ``state``'s episode
     sums plus this step. The new state takes ``obs``, ``critic_obs``, ``episode_return`` and
-    ``episode_length`` from the returned StepOut."""
+    ``episode_length`` from the returned MjxStepOut."""
     unstable, next_obs, next_cobs, reward, scaled = mask_unstable(data, next_obs, next_cobs, reward, scaled)
     term = done & ~unstable
     trunc = ((steps >= episode_length) | unstable) & ~term
-    return StepOut(obs=next_obs, critic_obs=next_cobs, next_obs=next_obs, next_critic_obs=next_cobs, reward=reward,
+    return MjxStepOut(obs=next_obs, critic_obs=next_cobs, next_obs=next_obs, next_critic_obs=next_cobs, reward=reward,
                    terminated=term, truncated=trunc, reward_terms=scaled,
                    episode_return=state.episode_return + reward, episode_length=state.episode_length + 1)
 
@@ -179,7 +179,7 @@ def restart_episodes(state: Any, ended: jax.Array, key: jax.Array, **fresh: Any)
 
 
 class Go1JoystickMjx:
-    """``reset(key, dr=None) -> EnvState``; ``step(state, action) -> (EnvState, StepOut)``; pure and
+    """``reset(key, dr=None) -> Go1MjxState``; ``step(state, action) -> (Go1MjxState, MjxStepOut)``; pure and
     jit-able (call them inside ``jax.jit``); ``spec`` as the CPU task's."""
 
     def __init__(self, config: gj.Go1JoystickConfig, num_envs: int, reset_batch: int = 0):
@@ -276,7 +276,7 @@ class Go1JoystickMjx:
     def _sensors(self, data: Any) -> dict:
         return gj.read_sensors(data.sensordata, self.sensor_index, self.model.nu)
 
-    def base_velocity(self, state: EnvState) -> jax.Array:
+    def base_velocity(self, state: Go1MjxState) -> jax.Array:
         """[M, 3] measured body-frame (vx, vy) and yaw rate, as the CPU task's ``base_velocity`` (walking metric)."""
         s = self._sensors(state.data)
         return jnp.concatenate([s["local_linvel"][:, :2], s["gyro"][:, 2:3]], axis=1)
@@ -322,7 +322,7 @@ class Go1JoystickMjx:
 
         return reset_in_batches(ended, (data, info, until, obs, cobs), key, self.reset_batch, reset_rows)
 
-    def reset(self, key: jax.Array, dr: dict | None = None) -> EnvState:
+    def reset(self, key: jax.Array, dr: dict | None = None) -> Go1MjxState:
         """Every env at the start of an episode; ``dr`` (numpy or jax, the CPU task's keys) fixes the
         domain-randomisation draw, otherwise it is sampled from ``key``."""
         n = self.num_envs
@@ -332,18 +332,18 @@ class Go1JoystickMjx:
         offset = dr["default_pose_offset"] if self.config.dr_pose_offset_on_targets else jnp.zeros((n, 12))
         data, info, until = self._reset_draws(k_reset, fields, offset)
         obs, cobs = self._observe(data, info, k_obs)
-        return EnvState(data=data, model_fields=fields, pose_offset=offset, info=info, steps_until_next_cmd=until,
-                        steps=jnp.zeros((n,), jnp.int32), obs=obs, critic_obs=cobs,
-                        episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state)
+        return Go1MjxState(data=data, model_fields=fields, pose_offset=offset, info=info, steps_until_next_cmd=until,
+                           steps=jnp.zeros((n,), jnp.int32), obs=obs, critic_obs=cobs,
+                           episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state)
 
-    def step(self, state: EnvState, action: jax.Array) -> tuple[EnvState, StepOut]:
+    def step(self, state: Go1MjxState, action: jax.Array) -> tuple[Go1MjxState, MjxStepOut]:
         """One control step of every env (``action [M, nu]`` clipped to [-1, 1], NaN -> 0); ended envs
-        auto-reset (``StepOut.obs`` after the reset, ``next_obs`` before it)."""
+        auto-reset (``MjxStepOut.obs`` after the reset, ``next_obs`` before it)."""
         a = jnp.clip(jnp.nan_to_num(action.astype(jnp.float32), nan=0.0), -1.0, 1.0)
         ctrl = self.consts["default_pose"] + state.pose_offset + a * self.config.action_scale
         return self.after_physics(state, self.physics_step(state.model_fields, state.data, ctrl), a)
 
-    def after_physics(self, state: EnvState, data: Any, a: jax.Array) -> tuple[EnvState, StepOut]:
+    def after_physics(self, state: Go1MjxState, data: Any, a: jax.Array) -> tuple[Go1MjxState, MjxStepOut]:
         """The rest of ``step`` given the post-physics ``data`` and the clipped action ``a``: ``transition``,
         then fresh episodes for the envs that ended."""
         st, out = self.transition(state, data, a)
@@ -355,9 +355,9 @@ class Go1JoystickMjx:
                                      critic_obs=cobs)
         return new_state, out._replace(obs=obs, critic_obs=cobs)
 
-    def transition(self, state: EnvState, data: Any, a: jax.Array) -> tuple[EnvState, StepOut]:
+    def transition(self, state: Go1MjxState, data: Any, a: jax.Array) -> tuple[Go1MjxState, MjxStepOut]:
         """Observation, reward, end flags and bookkeeping of a control step from the post-physics ``data``,
-        before any auto-reset (the returned state's and StepOut's ``obs`` are ``next_obs``; ``steps`` and the
+        before any auto-reset (the returned state's and MjxStepOut's ``obs`` are ``next_obs``; ``steps`` and the
         episode sums include this step). The parity tests call it on data from ``forward``."""
         c, n = self.config, self.num_envs
         key, k_noise, k_cmd = jax.random.split(state.key, 3)

@@ -55,12 +55,12 @@ import numpy as np
 from tasks import g1_walk, go2_joystick, walking
 from tasks import go1_joystick as gj
 from tasks import mjx_go1 as mg
-from tasks.mjx_go1 import StepOut, mjx
+from tasks.mjx_go1 import MjxStepOut, mjx
 
-__all__ = ["DR", "EnvState", "StepOut", "WalkingMjx", "make"]
+__all__ = ["DR", "WalkingMjxState", "MjxStepOut", "WalkingMjx", "make"]
 
 
-class EnvState(NamedTuple):
+class WalkingMjxState(NamedTuple):
     """Batched state of ``num_envs`` walking environments (a pytree; every leaf has the env axis first)."""
 
     data: Any  # mjx.Data
@@ -184,8 +184,8 @@ def split_body_contact_sensors(spec: mujoco.MjSpec) -> list[tuple[str, list[str]
 # The environment
 # --------------------------------------------------------------------------------------------------
 class WalkingMjx:
-    """``reset(key, dr=None) -> EnvState``; ``step(state, action) -> (EnvState, StepOut)``; pure and jit-able;
-    ``spec`` as the CPU task's. ``template`` is the one-env CPU task it is built from."""
+    """``reset(key, dr=None) -> WalkingMjxState``; ``step(state, action) -> (WalkingMjxState, MjxStepOut)``; pure
+    and jit-able; ``spec`` as the CPU task's. ``template`` is the one-env CPU task it is built from."""
 
     def __init__(self, task_cls: type[walking.WalkingTask], config: walking.WalkingConfig, num_envs: int,
                  reset_batch: int = 0):
@@ -258,7 +258,7 @@ class WalkingMjx:
         s["command"], s["last_act"] = info["command"], info["last_act"]
         return s
 
-    def base_velocity(self, state: EnvState) -> jax.Array:
+    def base_velocity(self, state: WalkingMjxState) -> jax.Array:
         """[M, 3] measured body-frame (vx, vy) and yaw rate, as the CPU task's ``base_velocity`` (walking metric)."""
         sd, index = self.cpu_sensordata(state.data.sensordata), self.layout["index"]
         (lin, _), (gyro, _) = index["local_linvel"], index["gyro"]
@@ -290,7 +290,7 @@ class WalkingMjx:
         return walking.observe(self.sensors(data, info, steps), info["last_act"], self._noise(key, steps.shape[0]),
                                t.default_pose, t.phase_groups, t.critic_extra)
 
-    def reset(self, key: jax.Array, dr: dict | None = None) -> EnvState:
+    def reset(self, key: jax.Array, dr: dict | None = None) -> WalkingMjxState:
         """Every env at the start of an episode; ``dr`` (numpy or jax, the CPU task's keys) fixes the
         domain-randomisation draw, otherwise it is sampled from ``key``."""
         n = self.num_envs
@@ -300,18 +300,18 @@ class WalkingMjx:
         data, info = self._reset_draws(k_reset, fields)
         steps = jnp.zeros((n,), jnp.int32)
         obs, cobs = self._observe(data, info, steps, k_obs)
-        return EnvState(data=data, model_fields=fields, info=info, steps=steps, obs=obs, critic_obs=cobs,
-                        episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state)
+        return WalkingMjxState(data=data, model_fields=fields, info=info, steps=steps, obs=obs, critic_obs=cobs,
+                               episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state)
 
-    def step(self, state: EnvState, action: jax.Array) -> tuple[EnvState, StepOut]:
+    def step(self, state: WalkingMjxState, action: jax.Array) -> tuple[WalkingMjxState, MjxStepOut]:
         """One control step of every env (``action [M, action_dim]``, NaN -> 0, clipped to +-action_clip if
-        that is > 0); ended envs auto-reset (``StepOut.obs`` after the reset, ``next_obs`` before it)."""
+        that is > 0); ended envs auto-reset (``MjxStepOut.obs`` after the reset, ``next_obs`` before it)."""
         a = jnp.nan_to_num(action.astype(jnp.float32), nan=0.0)
         if self.config.action_clip > 0:
             a = jnp.clip(a, -self.config.action_clip, self.config.action_clip)
         return self.after_physics(state, self.physics_step(state.model_fields, state.data, self.ctrl(a)), a)
 
-    def after_physics(self, state: EnvState, data: Any, a: jax.Array) -> tuple[EnvState, StepOut]:
+    def after_physics(self, state: WalkingMjxState, data: Any, a: jax.Array) -> tuple[WalkingMjxState, MjxStepOut]:
         """``transition``, then fresh episodes for the envs that ended."""
         st, out = self.transition(state, data, a)
         ended = out.terminated | out.truncated
@@ -329,9 +329,9 @@ class WalkingMjx:
         new_state = mg.restart_episodes(st, ended, key, data=data, info=info, obs=obs, critic_obs=cobs)
         return new_state, out._replace(obs=obs, critic_obs=cobs)
 
-    def transition(self, state: EnvState, data: Any, a: jax.Array) -> tuple[EnvState, StepOut]:
+    def transition(self, state: WalkingMjxState, data: Any, a: jax.Array) -> tuple[WalkingMjxState, MjxStepOut]:
         """Observation, reward, end flags, pushes and bookkeeping of a control step from the post-physics
-        ``data`` and the applied action ``a``, before any auto-reset (the returned state's and StepOut's
+        ``data`` and the applied action ``a``, before any auto-reset (the returned state's and MjxStepOut's
         ``obs`` are ``next_obs``). The parity tests call it on data from ``forward``."""
         c, n, t = self.config, self.num_envs, self.template
         key, k_noise, k_push = jax.random.split(state.key, 3)

@@ -3,7 +3,7 @@
 import threading
 import time
 
-from unilab_jax.trainer import _AsyncEvaluator
+from unilab_jax.training.evaluation import AsyncEvaluator
 
 
 class _SlowTrainer:
@@ -31,7 +31,7 @@ def _submit(ev, step):
 
 def test_a_newer_snapshot_replaces_the_waiting_one():
     tr = _SlowTrainer()
-    ev = _AsyncEvaluator(tr)
+    ev = AsyncEvaluator(tr)
     for step in range(1, 6):  # 1 runs (blocked); 2, 3, 4 each replaced by the next; 5 waits
         _submit(ev, step)
         time.sleep(0.05)
@@ -45,7 +45,7 @@ def test_a_newer_snapshot_replaces_the_waiting_one():
 
 def test_close_with_cancel_drops_the_waiting_evaluation():
     tr = _SlowTrainer()
-    ev = _AsyncEvaluator(tr)
+    ev = AsyncEvaluator(tr)
     _submit(ev, 1)
     time.sleep(0.05)
     _submit(ev, 2)
@@ -57,4 +57,4 @@ def test_close_with_cancel_drops_the_waiting_evaluation():
 
 
 def test_close_without_evaluations_returns_nothing():
-    assert _AsyncEvaluator(_SlowTrainer()).close() == {}
+    assert AsyncEvaluator(_SlowTrainer()).close() == {}

@@ -25,7 +25,7 @@ import pytest
 from unilab_jax import algos
 from unilab_jax import xp as shim
 from unilab_jax.config import apply_overrides
-from unilab_jax.trainer import RunConfig, Trainer
+from unilab_jax.training.trainer import RunConfig, Trainer
 
 FIXTURES = pathlib.Path(__file__).parent / "fixtures" / "checkpoints"
 

@@ -1,4 +1,4 @@
-"""Exported actors (unilab_jax.export) act exactly as the training-time numpy policy.
+"""Exported actors (unilab_jax.apps.export) act exactly as the training-time numpy policy.
 
 Every actor kind of the locomotion recipes gets the weight pytree its learner publishes (JAX learners'
 ``weights(init(key))`` on the recipe's task, or the HORA student's published layout), with every leaf
@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 
 import tasks
-from unilab_jax import algos, export, nets
+from unilab_jax import algos, nets
 from unilab_jax import xp as shim
+from unilab_jax.apps import export
 from unilab_jax.config import apply_overrides
 from unilab_jax.core.normalizer import RunningStats
 

@@ -17,7 +17,9 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGES = ("unilab_jax", "unilab_mlx", "tasks", "experiments")
 
-# (module-name pattern, layer), first match wins; a module no pattern matches fails the test.
+# (module-name pattern, layer), first match wins; a module no pattern matches fails the test. A layer group's
+# sub-layers (2.0 robots < 2.1 tasks < 2.2 runtime < 2.3 checkpoints, ...) order the modules inside the group,
+# so an import that runs back up inside a group (a robot module importing the runtime) fails like any other.
 LAYERS = [
     # L0: the array-API shim and its MLX backend
     ("unilab_jax.xp", 0), ("unilab_mlx.backend", 0),
@@ -25,26 +27,37 @@ LAYERS = [
     ("unilab_jax", 1), ("unilab_jax.core", 1), ("unilab_jax.core.*", 1), ("unilab_jax.nets", 1),
     ("unilab_jax.nets_temporal", 1), ("unilab_jax.config", 1), ("unilab_jax.metrics", 1),
     ("unilab_jax.fields", 1), ("unilab_jax.lazy", 1), ("unilab_jax.sizing", 1), ("unilab_mlx", 1), ("unilab_mlx.*", 1),
-    # L2: tasks, the runtime (workers load the algorithm declaration by module path) and checkpoints
-    # (runtime.ray_pool / runtime.host_rollouts: one host's pool behind pulls, and the learner's pool over Ray nodes)
-    ("tasks", 2), ("tasks.*", 2), ("unilab_jax.runtime", 2), ("unilab_jax.runtime.ray_pool", 2),
-    ("unilab_jax.runtime.host_rollouts", 2), ("unilab_jax.runtime.*", 2),
-    ("unilab_jax.checkpoint", 2), ("unilab_jax.robots", 2), ("unilab_jax.robots.*", 2),
+    # The command entry points kept at their documented names (python -m unilab_jax.play / .export /
+    # .robots.record): one-line forwarders to the applications wing, above everything they forward to.
+    ("unilab_jax.play", 7.4), ("unilab_jax.export", 7.4), ("unilab_jax.robots.record", 7.4),
+    # L2: resources: robots (the robot interface, sim robots, servers) < tasks (robot tasks use robot clients)
+    # < the runtime (workers build tasks) < checkpoints (which read the runtime's process checks)
+    ("unilab_jax.robots", 2.0), ("unilab_jax.robots.*", 2.0),
+    ("tasks", 2.1), ("tasks.*", 2.1),
+    ("unilab_jax.runtime", 2.2), ("unilab_jax.runtime.*", 2.2),
+    ("unilab_jax.checkpoint", 2.3),
     # L4: learners (above the declarations they import)
     ("unilab_jax.algos.*.learner_*", 4), ("unilab_jax.algos.ppo.him_ppo_jax", 4),
     # L3: algorithm declarations (config, act, losses), one folder per family
     ("unilab_jax.algos.*", 3),
     # L5: the registry: (algorithm, platform) -> learner factory, by module path
     ("unilab_jax.algos", 5),
-    # L6: trainer, command lines, MJX baseline, experiment scripts
-    ("unilab_jax.trainer", 6), ("unilab_jax.cli", 6), ("unilab_jax.hora_cli", 6), ("unilab_jax.mjx_train", 6),
-    ("unilab_jax.mjx_cli", 6), ("unilab_jax.device_replay", 6), ("unilab_jax.sharding", 6), ("experiments.*", 6),
-    ("unilab_jax.saved_run", 6), ("unilab_jax.play", 6), ("unilab_jax.export", 6),
-    ("unilab_jax.robot_cli", 6), ("unilab_jax.hgdagger", 6),
+    # L6: the training wing: its parts (threads, batch sources, evaluation, replay mirror, sharding) < the loops
+    ("unilab_jax.training", 6.0), ("unilab_jax.training.threads", 6.0), ("unilab_jax.training.sources", 6.0),
+    ("unilab_jax.training.evaluation", 6.0), ("unilab_jax.training.device_replay", 6.0),
+    ("unilab_jax.training.sharding", 6.0),
+    ("unilab_jax.training.trainer", 6.1), ("unilab_jax.training.mjx", 6.1), ("unilab_jax.training.hgdagger", 6.1),
+    # L7: the applications wing: saved runs < play, export, record < the experiments' flags < the family CLIs
+    ("unilab_jax.apps", 7.0), ("unilab_jax.apps.saved_run", 7.0),
+    ("unilab_jax.apps.play", 7.1), ("unilab_jax.apps.export", 7.1), ("unilab_jax.apps.record", 7.1),
+    ("unilab_jax.apps.cli", 7.2),
+    ("unilab_jax.apps.hora_cli", 7.3), ("unilab_jax.apps.mjx_cli", 7.3), ("unilab_jax.apps.robot_cli", 7.3),
+    # L8: experiment scripts
+    ("experiments.*", 8),
 ]
 
 
-def layer_of(module: str) -> int:
+def layer_of(module: str) -> float:
     for pattern, layer in LAYERS:
         if fnmatch.fnmatchcase(module, pattern):
             return layer
@@ -153,9 +166,13 @@ def test_no_import_cycles():
 
 @pytest.mark.parametrize("victim,bad_import,check", [
     ("unilab_jax/algos/offpolicy/sac.py", "from unilab_jax.algos.offpolicy import learner_jax", upward_imports),
-    ("unilab_jax/core/gae.py", "from unilab_jax import trainer", upward_imports),
+    ("unilab_jax/core/gae.py", "from unilab_jax.training import trainer", upward_imports),
     ("tasks/base.py", "import tasks.cartpole", find_cycle),
     ("unilab_jax/algos/offpolicy/sac.py", "from . import fastsac", find_cycle),
+    # back up inside a layer group: a robot module reaching the runtime, a training part reaching its loop
+    ("unilab_jax/robots/sim.py", "from unilab_jax.runtime import buffers", upward_imports),
+    ("unilab_jax/training/threads.py", "from unilab_jax.training import trainer", upward_imports),
+    ("unilab_jax/apps/saved_run.py", "from unilab_jax.apps import play", upward_imports),
 ])
 def test_the_checks_catch_a_bad_import(tmp_path, victim, bad_import, check):
     """A copy of the packages with one bad import added inside a function fails the check."""
@@ -168,3 +185,52 @@ def test_the_checks_catch_a_bad_import(tmp_path, victim, bad_import, check):
     target = tmp_path / victim
     target.write_text(target.read_text() + f"\n\ndef _bad():\n    {bad_import}\n")
     assert check(import_graph(tmp_path))
+
+
+SOURCE_PACKAGES = ("unilab_jax", "unilab_mlx", "tasks")
+MAX_LINES = 600  # no source file longer than this in unilab_jax/ or tasks/: split it by what its parts do
+# A family's JAX and MLX learners share their class and module names on purpose (same interface, one per
+# platform, side by side in the family's folder); every other name is defined once.
+PLATFORM_TWINS = {"learner_jax", "learner_mlx"}
+# Commands kept at their documented names (``python -m unilab_jax.play`` ...): forwarders to the application of
+# the same name, and nothing else (checked below).
+COMMAND_FORWARDERS = {"unilab_jax/play.py": "unilab_jax.apps.play", "unilab_jax/export.py": "unilab_jax.apps.export",
+                      "unilab_jax/robots/record.py": "unilab_jax.apps.record"}
+
+
+def _sources(root: pathlib.Path = ROOT) -> list[pathlib.Path]:
+    return [p for package in SOURCE_PACKAGES for p in sorted((root / package).rglob("*.py"))]
+
+
+def test_no_source_file_over_the_limit():
+    lengths = {str(p.relative_to(ROOT)): len(p.read_text().splitlines()) for p in _sources()}
+    long = [f"{path}: {n} lines" for path, n in lengths.items() if n > MAX_LINES]
+    assert not long, f"files over {MAX_LINES} lines:\n" + "\n".join(long)
+
+
+def test_module_names_do_not_collide():
+    seen: dict[str, list[str]] = {}
+    for p in _sources():
+        if p.stem != "__init__" and str(p.relative_to(ROOT)) not in COMMAND_FORWARDERS:
+            seen.setdefault(p.stem, []).append(str(p.relative_to(ROOT)))
+    twice = {name: paths for name, paths in seen.items() if len(paths) > 1 and name not in PLATFORM_TWINS}
+    assert not twice, f"module names defined more than once: {twice}"
+
+
+def test_class_names_do_not_collide():
+    seen: dict[str, list[pathlib.Path]] = {}
+    for p in _sources():
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.ClassDef):
+                seen.setdefault(node.name, []).append(p)
+    twice = {name: [str(p.relative_to(ROOT)) for p in paths] for name, paths in seen.items() if len(paths) > 1
+             and not (len({p.parent for p in paths}) == 1 and {p.stem for p in paths} <= PLATFORM_TWINS)}
+    assert not twice, f"class names defined more than once: {twice}"
+
+
+def test_command_forwarders_only_forward():
+    for path, target in COMMAND_FORWARDERS.items():
+        tree = ast.parse((ROOT / path).read_text())
+        imported = [(n.module, [a.name for a in n.names]) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+        assert imported == [(target, ["main"])], f"{path} should only import main from {target}: {imported}"
+        assert not [n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.ClassDef))], path

@@ -14,7 +14,7 @@ import pytest
 
 from unilab_jax import algos
 from unilab_jax.config import apply_overrides
-from unilab_jax.mjx_train import MjxRunConfig, OffPolicyMjxTrainer, PPOMjxTrainer, make_trainer
+from unilab_jax.training.mjx import MjxRunConfig, OffPolicyMjxTrainer, PPOMjxTrainer, make_trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 OPTS = {"xla_backend_optimization_level": 0}

@@ -69,7 +69,7 @@ def test_mlx_only_install_trains_and_restores_under_jax(mlx_venv, tmp_path):
     assert probe.returncode == 0 and str(REPO) not in probe.stdout, probe  # the installed copy, not the checkout
 
     # Nothing on the MLX training path imports jax (or orbax/optax/flax/chex), and checkpoints fall back to npz.
-    script = ("import sys, tempfile, tasks, unilab_jax.cli, unilab_jax.trainer\n"
+    script = ("import sys, tempfile, tasks, unilab_jax.apps.cli, unilab_jax.training.trainer\n"
               "from unilab_jax import algos\nfrom unilab_jax.checkpoint import Checkpointer\n"
               "m = algos.get('ppo'); t = tasks.make('cartpole_balance', num_envs=1, seed=0)\n"
               "m.make_learner('mlx', m.Config(), t.spec).init(0); t.close()\n"

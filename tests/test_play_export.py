@@ -45,7 +45,7 @@ def _observations(run, n_steps=20):
 def test_exported_policy_acts_as_the_checkpoint(go1_run, tmp_path):
     import onnxruntime as ort
 
-    from unilab_jax import saved_run
+    from unilab_jax.apps import saved_run
 
     for fmt, out in (("onnx", tmp_path / "go1.onnx"), ("numpy", tmp_path / "go1_policy.py")):
         done = _run(["-m", "unilab_jax.export", "--logdir", go1_run, "--format", fmt, "--out", str(out)])
@@ -106,7 +106,7 @@ def test_video_every_must_not_be_negative():
 def test_rollout_frames_api(go1_run, tmp_path):
     """The notebooks' API, in a fresh interpreter (the GL backend is chosen when mujoco is first imported)."""
     code = ("import json, sys\n"
-            "from unilab_jax import play\n"
+            "from unilab_jax.apps import play\n"
             "frames, stats = play.rollout_frames(sys.argv[1], steps=5, width=64, height=48, "
             "task_overrides={'episode_length': 50})\n"
             "play.write_video(frames, sys.argv[2], stats['fps'])\n"

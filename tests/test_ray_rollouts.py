@@ -58,7 +58,7 @@ def _cluster_run(temp_dir: str, logdir: str, seed: int = 0) -> dict:
 
     from unilab_jax import algos
     from unilab_jax.config import apply_overrides
-    from unilab_jax.trainer import RunConfig, Trainer
+    from unilab_jax.training.trainer import RunConfig, Trainer
 
     t0 = time.time()
     node = {"num_cpus": 1, "node_ip_address": "127.0.0.1", "temp_dir": temp_dir, "include_dashboard": False,
@@ -145,9 +145,9 @@ def test_pulled_rows_land_once_in_order_and_repeats_are_refused():
 
 
 def test_nothing_imports_ray_without_ray_address():
-    code = ("import sys; import unilab_jax.trainer, unilab_jax.cli, unilab_jax.runtime.pool, "
-            "unilab_jax.runtime.ray_pool, unilab_jax.runtime.host_rollouts, unilab_jax.sharding; "
-            "from unilab_jax.trainer import RunConfig; RunConfig('sac', 'cartpole_balance'); "
+    code = ("import sys; import unilab_jax.training.trainer, unilab_jax.apps.cli, unilab_jax.runtime.pool, "
+            "unilab_jax.runtime.ray_pool, unilab_jax.runtime.host_rollouts, unilab_jax.training.sharding; "
+            "from unilab_jax.training.trainer import RunConfig; RunConfig('sac', 'cartpole_balance'); "
             "print(sorted(m for m in sys.modules if m == 'ray' or m.startswith('ray.')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-3000:]
@@ -169,7 +169,7 @@ def test_nothing_imports_ray_without_ray_address():
 def test_scale_out_flags_fail_before_anything_starts(tmp_path, algo, flags, message):
     from absl.testing import flagsaver
 
-    from unilab_jax import cli, mjx_cli
+    from unilab_jax.apps import cli, mjx_cli
 
     with flagsaver.flagsaver():
         cli.FLAGS(["prog", *flags, f"--logdir={tmp_path / 'x'}"])

@@ -27,7 +27,7 @@ from unilab_jax.checkpoint import Checkpointer
 from unilab_jax.config import apply_overrides
 from unilab_jax.runtime.replay_store import ReplayStore
 from unilab_jax.runtime.shm import cleanup_stale, list_segments
-from unilab_jax.trainer import LearningDiverged, RunConfig, Trainer
+from unilab_jax.training.trainer import LearningDiverged, RunConfig, Trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY_SAC = {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32, "updates_per_call": 2, "publish_every": 4,

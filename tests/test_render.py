@@ -18,7 +18,7 @@ NAMES = ["cartpole_balance", "go1_joystick_flat", "go2_joystick_flat", "g1_walk_
 _SCRIPT = """
 import json, sys
 import numpy as np
-from unilab_jax import play  # picks MUJOCO_GL=egl before mujoco is imported
+from unilab_jax.apps import play  # picks MUJOCO_GL=egl before mujoco is imported
 import tasks
 
 out = {}
@@ -73,7 +73,7 @@ def _headless_choice(monkeypatch, libraries: set[str], preset: str | None = None
 
 def test_headless_backend_only_where_its_library_is(monkeypatch):
     # A backend whose library is missing makes `import mujoco` itself fail (a state-policy evaluation through
-    # unilab_jax.play crashed so on a GPU machine without libEGL): choose one only where it can load.
+    # unilab_jax.apps.play crashed so on a GPU machine without libEGL): choose one only where it can load.
     assert _headless_choice(monkeypatch, {"EGL", "OSMesa"}) == "egl"
     assert _headless_choice(monkeypatch, {"OSMesa"}) == "osmesa"
     assert _headless_choice(monkeypatch, set()) is None

@@ -18,7 +18,7 @@ import os
 
 from unilab_jax import algos
 from unilab_jax.config import apply_overrides
-from unilab_jax.trainer import RunConfig, Trainer
+from unilab_jax.training.trainer import RunConfig, Trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

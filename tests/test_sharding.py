@@ -1,4 +1,4 @@
-"""Data-parallel learners (``unilab_jax/sharding.py``): on 2 emulated CPU devices the sharded update equals the
+"""Data-parallel learners (``unilab_jax/training/sharding.py``): on 2 emulated CPU devices the sharded update equals the
 single-device one (same state, batches and key) within float tolerance, for FastSAC and PPO (TD3, SAC and FlashSAC
 share FastSAC's wrapper; TD3 measured 6e-8); the sharded
 device replay mirror draws the same rows as the single-device one; bad ``--devices`` values are refused.
@@ -43,8 +43,9 @@ def _compare(name: str) -> dict:
     import jax
 
     from tasks.base import TaskSpec
-    from unilab_jax import algos, sharding
+    from unilab_jax import algos
     from unilab_jax.config import apply_overrides
+    from unilab_jax.training import sharding
 
     assert jax.device_count() == 2, jax.devices()
     spec = TaskSpec("check", 6, 6, 2, 50, 0.02, ())
@@ -90,9 +91,9 @@ def _mirror() -> dict:
     """The replay mirror on two devices: same rows as on one, gathered batch split along B."""
     import jax
 
-    from unilab_jax import sharding
-    from unilab_jax.device_replay import DeviceReplay
     from unilab_jax.runtime.buffers import ReplayBuffer
+    from unilab_jax.training import sharding
+    from unilab_jax.training.device_replay import DeviceReplay
 
     ring = ReplayBuffer.create({"obs": ((3,), np.float32), "reward": ((), np.float32)}, 2, 4, 64)
     try:
@@ -117,9 +118,10 @@ def _mirror() -> dict:
 
 def _train(tmp: str) -> dict:
     """Short serial runs of the Trainer with --devices=2: FastSAC through the sharded replay mirror, PPO."""
-    from unilab_jax import algos, sharding
+    from unilab_jax import algos
     from unilab_jax.config import apply_overrides
-    from unilab_jax.trainer import RunConfig, Trainer
+    from unilab_jax.training import sharding
+    from unilab_jax.training.trainer import RunConfig, Trainer
 
     out = {}
     for algo, recipe, extra in [
@@ -177,7 +179,7 @@ def test_sharded_updates_equal_single_device(tmp_path):
 
 
 def test_devices_flag_values_are_checked():
-    sharding = pytest.importorskip("unilab_jax.sharding")
+    sharding = pytest.importorskip("unilab_jax.training.sharding")
     assert sharding.parse_devices("all") is None and sharding.parse_devices("2") == 2
     for bad in ("0", "-1", "two"):
         with pytest.raises(ValueError, match="--devices"):

@@ -10,7 +10,8 @@ import sys
 
 import pytest
 
-from unilab_jax import cli, sizing
+from unilab_jax import sizing
+from unilab_jax.apps import cli
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

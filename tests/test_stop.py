@@ -27,7 +27,8 @@ from unilab_jax import algos
 from unilab_jax.checkpoint import Checkpointer
 from unilab_jax.config import apply_overrides
 from unilab_jax.runtime.shm import list_segments
-from unilab_jax.trainer import RunConfig, Trainer, learner_busy
+from unilab_jax.training.threads import learner_busy
+from unilab_jax.training.trainer import RunConfig, Trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY_PPO = {"actor_hidden": (16,), "critic_hidden": (16,), "horizon": 8, "num_epochs": 1, "num_minibatches": 2}

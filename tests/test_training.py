@@ -7,7 +7,7 @@ import pytest
 
 from unilab_jax import algos
 from unilab_jax.config import apply_overrides
-from unilab_jax.trainer import RunConfig, Trainer
+from unilab_jax.training.trainer import RunConfig, Trainer
 
 CARTPOLE_RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "horizon": 32, "learning_rate": 1e-3,
                    "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.0, "gamma": 0.98, "desired_kl": 0.01}

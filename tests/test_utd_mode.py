@@ -14,7 +14,7 @@ import time
 
 from unilab_jax import algos
 from unilab_jax.config import apply_overrides
-from unilab_jax.trainer import RunConfig, Trainer
+from unilab_jax.training.trainer import RunConfig, Trainer
 
 UTD = 0.5
 RECIPE = {"actor_hidden": (32, 32), "critic_hidden": (32, 32), "batch_size": 64, "updates_per_call": 8,

@@ -13,7 +13,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from unilab_jax import nets_temporal
-from unilab_jax.core import c51, distributions, gae, him, hora, normalizer, polyak, ppo, sac, td3, vtrace
+from unilab_jax.core import adaptation as hora
+from unilab_jax.core import c51, distributions, gae, him, normalizer, polyak, vtrace
+from unilab_jax.core import ppo_losses as ppo
+from unilab_jax.core import sac_losses as sac
+from unilab_jax.core import td3_losses as td3
 
 T, B, A, K, D = 12, 8, 4, 21, 5
 

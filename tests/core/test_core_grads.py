@@ -7,7 +7,9 @@ import pytest
 from core_helpers import assert_close, f32, put, to_np
 
 from unilab_jax import xp as shim
-from unilab_jax.core import c51, distributions, ppo, sac
+from unilab_jax.core import c51, distributions
+from unilab_jax.core import ppo_losses as ppo
+from unilab_jax.core import sac_losses as sac
 
 N, D, A, K = 32, 6, 3, 11
 

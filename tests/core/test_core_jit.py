@@ -31,7 +31,7 @@ def test_jitted_kernel_traces_once(case):
 def test_hyperparameters_can_be_traced():
     # Loss coefficients and discounts passed as traced scalars do not force a retrace when they change.
     from unilab_jax.core.gae import gae
-    from unilab_jax.core.ppo import ppo_loss
+    from unilab_jax.core.ppo_losses import ppo_loss
 
     chex.clear_trace_counter()
     jx = shim.get("jax")
@@ -53,7 +53,7 @@ def test_hyperparameters_can_be_traced():
 
 def test_retrace_guard_is_live():
     # Control: a new shape does retrace, and the guard notices (so the tests above are not vacuous).
-    from unilab_jax.core.td3 import td3_actor_loss
+    from unilab_jax.core.td3_losses import td3_actor_loss
 
     chex.clear_trace_counter()
     jitted = jax.jit(chex.assert_max_traces(td3_actor_loss, n=1))

@@ -10,7 +10,8 @@ from core_helpers import assert_close, f32, to_np
 
 from unilab_jax import nets_temporal
 from unilab_jax import xp as shim
-from unilab_jax.core import him, hora
+from unilab_jax.core import adaptation as hora
+from unilab_jax.core import him
 
 jax = pytest.importorskip("jax")
 

@@ -7,7 +7,7 @@ import pytest
 from core_helpers import assert_close, f32, to_np
 
 from unilab_jax import xp as shim
-from unilab_jax.core.ppo import kl_adaptive_lr, ppo_loss
+from unilab_jax.core.ppo_losses import kl_adaptive_lr, ppo_loss
 
 jax = pytest.importorskip("jax")
 jnp = jax.numpy

@@ -1,4 +1,4 @@
-"""RLPD kernels (unilab_jax.core.rlpd) on hand-computed cases, on numpy, jax and mlx."""
+"""RLPD kernels (unilab_jax.core.rlpd_kernels) on hand-computed cases, on numpy, jax and mlx."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from unilab_jax import xp as shim
-from unilab_jax.core import rlpd
+from unilab_jax.core import rlpd_kernels as rlpd
 
 BACKENDS = ["numpy", "jax", "mlx"]
 

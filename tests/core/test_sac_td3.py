@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from core_helpers import assert_close, f32
 
-from unilab_jax.core import sac, td3
+from unilab_jax.core import sac_losses as sac
+from unilab_jax.core import td3_losses as td3
 
 jax = pytest.importorskip("jax")
 

@@ -17,13 +17,13 @@ mx = pytest.importorskip("mlx.core")
 from mlx_helpers import run_python  # noqa: E402
 
 from unilab_jax import xp  # noqa: E402
-from unilab_jax.trainer import LearnerThread  # noqa: E402
+from unilab_jax.training.threads import LearnerThread  # noqa: E402
 
 # The main thread and the learner thread both compute; the script ends right after close().
 SCRIPT = """
 import threading
 import mlx.core as mx
-from unilab_jax.trainer import LearnerThread
+from unilab_jax.training.threads import LearnerThread
 
 mx.eval(mx.ones((8, 8)) * 2)
 learner = LearnerThread("mlx")

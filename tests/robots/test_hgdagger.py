@@ -12,7 +12,7 @@ import pytest
 import tasks
 from tasks.robot import SOURCE_OPERATOR
 from unilab_jax.algos.imitation.bc import BCConfig
-from unilab_jax.hgdagger import HGDagger, HGDaggerConfig
+from unilab_jax.training.hgdagger import HGDagger, HGDaggerConfig
 
 # Measured (2-core VM, load ~16, seeds 0-3; 12 demonstrations, 3 rounds of 8 gated episodes, 12-episode
 # evaluations; ~15 s CPU each): success of the BC policy 0/12 on every seed; after rounds 1-3

@@ -18,14 +18,14 @@ from pattern_robot import PROPRIO, frame, serving
 
 import tasks
 from unilab_jax import xp as shim
+from unilab_jax.apps import record
 from unilab_jax.fields import IMAGE_FIELDS, REPLAY_FIELDS, prior_fields, replay_fields
-from unilab_jax.play import deterministic_policy, run_episodes
-from unilab_jax.robots import record
 from unilab_jax.runtime.buffers import transition_layout
 from unilab_jax.runtime.pool import WorkerPool
 from unilab_jax.runtime.prior import load_prior
 from unilab_jax.runtime.replay_store import ReplayStore
-from unilab_jax.trainer import _ReplaySource
+from unilab_jax.training.evaluation import deterministic_policy, run_episodes
+from unilab_jax.training.sources import ReplaySource
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CAMERAS, SIZE, STACK = ("wrist", "front"), 16, 3  # the task's camera order differs from the server's (front, wrist)
@@ -158,12 +158,12 @@ def test_images_arrive_byte_exact_in_learner_batches(tmp_path):
             store = ReplayStore(str(tmp_path / "replay"), {k: layout[k] for k in replay_fields(pool.spec)})
             cfg = SimpleNamespace(batch_size=64, updates_per_call=2, learning_starts=64, utd=1e9, publish_every=2,
                                   prior_fraction=0.5)
-            from unilab_jax.device_replay import DeviceReplay
+            from unilab_jax.training.device_replay import DeviceReplay
 
             sources = {"host": (shim.get("numpy"), None, None), "disk": (shim.get("numpy"), store, None),
                        "device": (shim.get("jax"), None, DeviceReplay(pool.buffer, replay_fields(pool.spec)))}
             for what, (xp, st, mirror) in sources.items():
-                source = _ReplaySource(pool, xp, cfg, {"env_steps": 0, "updates": 0}, 0, st, 0.5, None, mirror,
+                source = ReplaySource(pool, xp, cfg, {"env_steps": 0, "updates": 0}, 0, st, 0.5, None, mirror,
                                        total_steps=10**6, prior=prior)
                 out, _ = source.produce(threading.Event())
                 source.stop()

@@ -8,8 +8,9 @@ import os
 import numpy as np
 import pytest
 
+from unilab_jax.apps import record
 from unilab_jax.fields import REPLAY_FIELDS
-from unilab_jax.robots import record, teleop
+from unilab_jax.robots import teleop
 from unilab_jax.runtime.prior import PriorDataError, load_prior
 from unilab_jax.runtime.replay_store import ReplayStore
 
@@ -126,7 +127,7 @@ def test_recorded_demos_are_what_the_learner_sees_online(tmp_path):
     an episode sum to the success bonus plus the potential's change (Ng et al.'s telescoping sum)."""
     import tasks
     from unilab_jax.robots.experts import make_expert
-    from unilab_jax.robots.tasks import SUCCESS_BONUS, PegGeometry, peg_potential
+    from unilab_jax.robots.manipulation import SUCCESS_BONUS, PegGeometry, peg_potential
 
     task = tasks.make("robot_peg_insertion", num_envs=2, seed=4, overrides={"policy_state": True, "dense_reward": True,
                                                                              "lock_rotation": True})

@@ -10,9 +10,9 @@ import numpy as np
 
 import tasks
 from unilab_jax import xp as shim
+from unilab_jax.apps import record
+from unilab_jax.apps.robot_cli import ROBOT_TASK, STATE_TASK
 from unilab_jax.core import normalizer
-from unilab_jax.robot_cli import ROBOT_TASK, STATE_TASK
-from unilab_jax.robots import record
 
 PEG = ("--robot=franka", "--task=peg_insertion", "--speed=50", "--reset_s=0.1", "--cameras=none", "--dense_reward")
 NP = shim.get("numpy")

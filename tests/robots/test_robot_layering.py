@@ -6,12 +6,13 @@ from __future__ import annotations
 import subprocess
 import sys
 
-FORBIDDEN = ("jax", "mlx", "unilab_mlx", "unilab_jax.algos", "unilab_jax.trainer", "unilab_jax.cli",
+FORBIDDEN = ("jax", "mlx", "unilab_mlx", "unilab_jax.algos", "unilab_jax.training.trainer", "unilab_jax.apps.cli",
              "unilab_jax.runtime", "tasks", "torch")
 
 _SCRIPT = """
 import sys, math
-from unilab_jax.robots import client, experts, gl, interface, protocol, serve, server, sim, tasks
+from unilab_jax.robots import client, experts, gl, interface, protocol, serve, server, sim
+from unilab_jax.robots import manipulation
 robot = sim.SimRobot(sim.SimConfig(cameras=(), speed=math.inf, reset_seconds=0.0))
 robot.reset(seed=0)
 robot.step([0.0] * 7)

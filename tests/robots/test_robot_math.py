@@ -10,9 +10,7 @@ import pytest
 from unilab_jax.robots import ik, protocol, scenes
 from unilab_jax.robots.experts import move_action, square_yaw
 from unilab_jax.robots.interface import BadRequest, Health, RobotSpec, check_action
-from unilab_jax.robots.serve import parse_faults
-from unilab_jax.robots.sim import apply_delta, gripper_ctrl, gripper_opening, proprio_vector
-from unilab_jax.robots.tasks import (
+from unilab_jax.robots.manipulation import (
     SUCCESS_BONUS,
     BinGeometry,
     PegGeometry,
@@ -23,6 +21,8 @@ from unilab_jax.robots.tasks import (
     pick_place_potential,
     shaped_reward,
 )
+from unilab_jax.robots.serve import parse_faults
+from unilab_jax.robots.sim import apply_delta, gripper_ctrl, gripper_opening, proprio_vector
 
 
 def _spec(**kw) -> RobotSpec:

@@ -13,7 +13,7 @@ from rt_helpers import replay_rows_ok, replay_value, replay_worker_and_index, wr
 from unilab_jax.runtime.buffers import ReplayBuffer
 
 jax = pytest.importorskip("jax")
-from unilab_jax.device_replay import DeviceReplay  # noqa: E402
+from unilab_jax.training.device_replay import DeviceReplay  # noqa: E402
 
 pytestmark = pytest.mark.timeout(120)
 

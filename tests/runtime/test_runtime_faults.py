@@ -267,7 +267,7 @@ def test_trainer_replay_run_ends_at_its_budget(tmp_path):
     runs) instead of running on; the restart and non-finite counters are logged."""
     from unilab_jax import algos
     from unilab_jax.config import apply_overrides
-    from unilab_jax.trainer import RunConfig, Trainer
+    from unilab_jax.training.trainer import RunConfig, Trainer
 
     module = algos.get("sac")
     config = apply_overrides(module.Config(), {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32,

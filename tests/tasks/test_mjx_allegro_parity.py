@@ -59,7 +59,7 @@ def _mirror(env, task):
     fields = {k: jnp.asarray(np.stack([getattr(m, k) for m in task.sim.models]), jnp.float32)
               for k in mjx_allegro.GEOM_FIELDS + mjx_allegro.BODY_FIELDS}
     info = {k: jnp.asarray(v, jnp.float32) for k, v in task.info.items()}
-    return mjx_allegro.EnvState(data=data, model_fields=fields, params=jnp.asarray(task.params, jnp.float32),
+    return mjx_allegro.AllegroMjxState(data=data, model_fields=fields, params=jnp.asarray(task.params, jnp.float32),
                                 info=info, steps=jnp.asarray(task.steps, jnp.int32), obs=jnp.zeros((M, 48)),
                                 critic_obs=jnp.zeros((M, 88)), episode_return=jnp.zeros(M),
                                 episode_length=jnp.zeros(M, jnp.int32), key=jax.random.PRNGKey(0))

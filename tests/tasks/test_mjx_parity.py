@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 import tasks
-from unilab_jax.mjx_train import make_env
+from unilab_jax.training.mjx import make_env
 
 M = 8
 OPTS = {"xla_backend_optimization_level": 0}  # a third less XLA compile time; numerics unchanged

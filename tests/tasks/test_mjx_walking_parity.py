@@ -29,8 +29,8 @@ import numpy as np
 import pytest
 
 import tasks
-from tasks.mjx_walking import EnvState
-from unilab_jax.mjx_train import make_env
+from tasks.mjx_walking import WalkingMjxState
+from unilab_jax.training.mjx import make_env
 
 M = 4
 OPTS = {"xla_backend_optimization_level": 0}  # less XLA compile time; numerics unchanged
@@ -51,7 +51,7 @@ def case(request):
         randomisation draw and episode state (``obs`` left at 0)."""
         fields = e.model_fields(dr)
         z = jnp.zeros((M,))
-        return EnvState(data=e.forward(fields, qpos, qvel, ctrl), model_fields=fields,
+        return WalkingMjxState(data=e.forward(fields, qpos, qvel, ctrl), model_fields=fields,
                         info={"command": command, "last_act": last_act}, steps=steps,
                         obs=jnp.zeros((M, e.spec.obs_dim)), critic_obs=jnp.zeros((M, e.spec.critic_obs_dim)),
                         episode_return=z, episode_length=z.astype(jnp.int32), key=jax.random.PRNGKey(0))

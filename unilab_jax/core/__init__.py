@@ -5,7 +5,11 @@ Every function here takes arrays (numpy, jax or mlx -- the backend is found from
 arrays (e.g. ``eps``), never through a global generator. Shapes are stated in each docstring; time
 series are time-major ``[T, B]``. Import the modules you need::
 
-    from unilab_jax.core import gae, ppo, vtrace, distributions, sac, td3, c51, normalizer, polyak, him, hora
+    from unilab_jax.core import gae, vtrace, distributions, c51, normalizer, polyak, him
+    from unilab_jax.core import ppo_losses as ppo
+    from unilab_jax.core import sac_losses as sac
+    from unilab_jax.core import td3_losses as td3
+    from unilab_jax.core import adaptation as hora
 
 Nothing is imported eagerly here, so ``import unilab_jax.core`` stays numpy-only and cheap.
 """

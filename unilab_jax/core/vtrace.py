@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from unilab_jax import xp as shim
-from unilab_jax.core.ppo import standardize_advantages
+from unilab_jax.core.ppo_losses import standardize_advantages
 
 
 def vtrace(values: Any, next_values: Any, rewards: Any, discounts: Any, log_rhos: Any, done: Any,

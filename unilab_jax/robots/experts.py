@@ -19,8 +19,8 @@ import numpy as np
 
 from unilab_jax.robots import ik, scenes
 from unilab_jax.robots.interface import RobotSpec
+from unilab_jax.robots.manipulation import PegGeometry, object_yaw
 from unilab_jax.robots.sim import SimConfig, SimRobot
-from unilab_jax.robots.tasks import PegGeometry, object_yaw
 
 OPEN, CLOSED = -1.0, 1.0
 

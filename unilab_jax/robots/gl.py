@@ -61,7 +61,7 @@ def prefer_headless() -> None:
     (a GPU driver's EGL, or Mesa's software one on CPU-only machines); ``osmesa`` where only OSMesa is
     installed; nothing where neither library is, so that mujoco still imports and only rendering fails (with
     the renderer's own error). Only has an effect before mujoco is imported, so callers run it first
-    (``unilab_jax.play`` on import, the CLI when ``--video_every`` is set)."""
+    (``unilab_jax.apps.play`` on import, the CLI when ``--video_every`` is set)."""
     if not sys.platform.startswith("linux") or "mujoco" in sys.modules or "MUJOCO_GL" in os.environ:
         return
     for backend in CANDIDATES:

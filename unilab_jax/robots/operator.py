@@ -28,7 +28,7 @@ import numpy as np
 
 from unilab_jax.robots.experts import PickPlaceExpert, make_expert
 from unilab_jax.robots.interface import RobotSpec
-from unilab_jax.robots.tasks import BinGeometry
+from unilab_jax.robots.manipulation import BinGeometry
 
 MODES = ("off", "gate", "always")
 

@@ -38,7 +38,7 @@ from unilab_jax.robots.interface import (
     Step,
     check_action,
 )
-from unilab_jax.robots.tasks import TASKS, make_task
+from unilab_jax.robots.manipulation import TASKS, make_task
 
 PROPRIO_DIM = 13
 CAMERAS = ("front", "wrist")

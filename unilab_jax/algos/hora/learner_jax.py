@@ -17,7 +17,7 @@ from unilab_jax.algos.hora.student import HoraStudentConfig
 from unilab_jax.algos.hora.teacher import HoraTeacherConfig
 from unilab_jax.algos.ppo import learner_jax as ppo_jax
 from unilab_jax.algos.ppo import ppo
-from unilab_jax.core import hora as hora_core
+from unilab_jax.core import adaptation as hora_core
 from unilab_jax.core import normalizer
 from unilab_jax.core.normalizer import RunningStats
 

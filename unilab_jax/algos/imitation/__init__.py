@@ -1,2 +1,2 @@
 """Imitation learning: behaviour cloning (``bc.py``, learner ``learner_jax.py``), the policy HG-DAgger trains
-(``unilab_jax/hgdagger.py``)."""
+(``unilab_jax/training/hgdagger.py``)."""

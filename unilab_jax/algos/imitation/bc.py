@@ -3,7 +3,7 @@
 The policy is ``tanh(mlp(normalize(obs)))`` (actions in (-1, 1) like every task's), its loss the mean
 squared error to the operator's actions summed over action dimensions. Input normalisation uses the
 dataset's statistics (``core.normalizer``, with a variance floor), fixed for a fit. HG-DAgger
-(``unilab_jax/hgdagger.py``) fits it on the aggregated operator data; the robot tasks' operators act in
+(``unilab_jax/training/hgdagger.py``) fits it on the aggregated operator data; the robot tasks' operators act in
 the task layer, so the policy only ever sees observations.
 
 Weights: ``{"actor": mlp, "obs_norm": RunningStats}`` (the shape of SAC's, so ``act`` runs in workers and

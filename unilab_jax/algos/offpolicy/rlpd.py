@@ -39,8 +39,9 @@ from unilab_jax.algos.offpolicy.sac import (
     soft_actor_loss,
     temperature_loss,
 )
-from unilab_jax.core import distributions, rlpd
-from unilab_jax.core import sac as sac_core
+from unilab_jax.core import distributions
+from unilab_jax.core import rlpd_kernels as rlpd
+from unilab_jax.core import sac_losses as sac_core
 from unilab_jax.lazy import learner_maker
 
 SYNC = "async"

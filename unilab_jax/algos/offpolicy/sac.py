@@ -39,7 +39,7 @@ from unilab_jax import nets
 from unilab_jax import xp as shim
 from unilab_jax.algos.offpolicy import image_obs
 from unilab_jax.core import distributions, normalizer
-from unilab_jax.core import sac as sac_core
+from unilab_jax.core import sac_losses as sac_core
 from unilab_jax.lazy import learner_maker
 
 SYNC = "async"

@@ -45,7 +45,7 @@ from unilab_jax.algos.offpolicy.sac import (
     temperature_loss,
 )
 from unilab_jax.core import flow, normalizer
-from unilab_jax.core import sac as sac_core
+from unilab_jax.core import sac_losses as sac_core
 from unilab_jax.lazy import learner_maker
 
 SYNC = "async"

@@ -36,7 +36,7 @@ from unilab_jax.algos.offpolicy.sac import (
     mlp_apply,
 )
 from unilab_jax.core import normalizer
-from unilab_jax.core import td3 as td3_core
+from unilab_jax.core import td3_losses as td3_core
 from unilab_jax.lazy import learner_maker
 
 SYNC = "async"

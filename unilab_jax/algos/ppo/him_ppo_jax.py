@@ -25,13 +25,13 @@ def _policy_part(tree: dict) -> dict:
     return {k: tree[k] for k in him_ppo.POLICY_KEYS}
 
 
-def make_learner(algo: Any, config: him_ppo.HIMPPOConfig, spec: Any) -> Learner:
+def make_learner(algo: Any, config: him_ppo.HIMPPOConfig, spec: Any) -> HIMLearner:
     """The registry's factory for HIM-PPO (after its spec check)."""
     algo.check_spec(spec, config)
-    return Learner(config, spec)
+    return HIMLearner(config, spec)
 
 
-class Learner(ppo_jax.Learner):
+class HIMLearner(ppo_jax.Learner):
     extra_fields = ("next_critic_obs",)
     actor = staticmethod(him_ppo.actor)
 

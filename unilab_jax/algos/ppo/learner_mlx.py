@@ -50,7 +50,7 @@ from unilab_jax import xp as shim
 from unilab_jax.algos.ppo import ppo
 from unilab_jax.algos.ppo.ppo import TrainState
 from unilab_jax.core import normalizer
-from unilab_jax.core import ppo as ppo_core
+from unilab_jax.core import ppo_losses as ppo_core
 from unilab_jax.fields import TRAJECTORY_FIELDS
 from unilab_mlx import optim
 from unilab_mlx.state import state_from_numpy, state_to_numpy

@@ -13,7 +13,8 @@ from typing import Any, NamedTuple
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
-from unilab_jax.core import distributions, gae, normalizer, ppo, vtrace
+from unilab_jax.core import distributions, gae, normalizer, vtrace
+from unilab_jax.core import ppo_losses as ppo
 from unilab_jax.lazy import learner_maker
 
 SYNC = "lockstep"

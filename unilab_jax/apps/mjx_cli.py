@@ -1,10 +1,10 @@
 """Flags of the MJX experiments (``experiments/*_mjx.py``), validated before anything compiles.
 
-The shared experiment flags of ``unilab_jax.cli`` (``--total_steps``, ``--seed``, ``--logdir``,
+The shared experiment flags of ``unilab_jax.apps.cli`` (``--total_steps``, ``--seed``, ``--logdir``,
 ``--eval_every``, ``--eval_envs``, ``--config``, ``--task_config``, ``--task``) plus ``--num_envs``,
 ``--max_seconds`` and ``--iterations_per_call``; the worker flags of the heterogeneous runtime are rejected::
 
-    from unilab_jax.mjx_cli import run_mjx_experiment
+    from unilab_jax.apps.mjx_cli import run_mjx_experiment
     run_mjx_experiment(algo="ppo", task="go1_joystick_flat", recipe={...}, default_num_envs=8192)
 """
 
@@ -17,7 +17,7 @@ from typing import Any
 
 from absl import flags
 
-from unilab_jax import cli
+from unilab_jax.apps import cli
 
 FLAGS = flags.FLAGS
 flags.DEFINE_integer("num_envs", None, "MJX environments stepped together on the accelerator (default: the "
@@ -37,7 +37,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     import tasks
     from unilab_jax import algos
     from unilab_jax.config import apply_overrides, parse_overrides
-    from unilab_jax.mjx_train import MJX_TASKS, MjxRunConfig
+    from unilab_jax.training.mjx import MJX_TASKS, MjxRunConfig
 
     given = [name for name in RUNTIME_ONLY if name in FLAGS and FLAGS[name].present]
     if given:
@@ -86,7 +86,7 @@ def run_mjx_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = 
         run, module, config, task_overrides = build_run(algo, task, recipe or {}, task_recipe or {},
                                                         default_total_steps, default_num_envs,
                                                         default_iterations_per_call)
-        from unilab_jax.mjx_train import make_trainer
+        from unilab_jax.training.mjx import make_trainer
 
         return make_trainer(run, module, config, task_overrides, start_time=cli.PROCESS_START)
 

@@ -1,10 +1,10 @@
 """The robot experiments' command line (robots as resources, docs/ROBOTS.md): SAC and RLPD on the manipulation
 tasks through robot servers. ``experiments/sac_franka_pick.py`` and its siblings (also SAC Flow's) are::
 
-    from unilab_jax.robot_cli import run_robot_experiment
+    from unilab_jax.apps.robot_cli import run_robot_experiment
     run_robot_experiment("rlpd", "robot_peg_insertion", RECIPE, default_total_steps=20_000)
 
-Flags beside the shared ones (``unilab_jax.cli``):
+Flags beside the shared ones (``unilab_jax.apps.cli``):
 
 * ``--robots``: a comma list or a ``.toml`` inventory (``unilab_jax.robots.inventory``): ``sim:NAME`` robots are
   started here as local robot servers (``--speed`` times real time, rendering the cameras of the image
@@ -50,7 +50,7 @@ from typing import Any
 
 from absl import flags
 
-from unilab_jax.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
+from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
 
 # The manipulation recipe of sac_franka_peg, rlpd_franka_peg and rlpd_franka_pick: small networks and utd 4 fit a
 # 2-core CPU (``--config utd=20``: the RLPD paper's ratio, for a GPU); the policy sees the object state. A small
@@ -178,7 +178,7 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
 
 def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tuple[str, float]:
     """The demonstrations folder and the robot seconds this run spent recording it (0 when given or reused)."""
-    from unilab_jax.robots import record
+    from unilab_jax.apps import record
 
     if FLAGS.demos:
         return os.path.abspath(FLAGS.demos), 0.0
@@ -198,7 +198,7 @@ def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tu
 def _train(validated: tuple, dense_reward: bool) -> None:
     from unilab_jax.robots import inventory
     from unilab_jax.runtime.prior import PriorDataError
-    from unilab_jax.trainer import Trainer
+    from unilab_jax.training.trainer import Trainer
 
     entries, (run, module, config, task_overrides), task_config = validated
     robot_task = run.task.removeprefix("robot_")

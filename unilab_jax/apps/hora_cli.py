@@ -1,7 +1,7 @@
 """Two-stage HORA runs from one command: the privileged teacher, then the student, resumable per stage.
 
 An experiment script calls :func:`run_hora` with its recipes; the shared flags of
-``unilab_jax.cli`` apply to both stages, plus::
+``unilab_jax.apps.cli`` apply to both stages, plus::
 
     --teacher_steps / --student_steps   env-step budgets of the two stages (--total_steps is refused)
     --history_len                       frames the student's adaptation module sees (HORA: 30)
@@ -30,7 +30,7 @@ from typing import Any
 
 from absl import flags
 
-from unilab_jax import cli
+from unilab_jax.apps import cli
 
 FLAGS = flags.FLAGS
 flags.DEFINE_integer("teacher_steps", None, "env steps of stage 1, the privileged teacher (default: the script's)")
@@ -57,7 +57,7 @@ def evaluate_policy(algo_module: Any, weights: dict, task: str, overrides: Mappi
                     seed: int) -> dict[str, float]:
     """The trainer's deterministic evaluation (same seeds, same metrics: ``eval/return``, and the walking
     metric on locomotion tasks) of ``algo_module.act`` with ``weights``, outside a training run."""
-    from unilab_jax.trainer import Trainer
+    from unilab_jax.training.trainer import Trainer
 
     run = types.SimpleNamespace(task=task, eval_envs=num_envs)
     probe = types.SimpleNamespace(run=run, task_overrides=dict(overrides), eval_overrides=dict(overrides),
@@ -182,7 +182,7 @@ def run_hora(task: str, teacher_recipe: Mapping[str, Any], student_recipe: Mappi
     whose student / teacher ratio is ``student_to_teacher``."""
 
     def train(plan: dict[str, Any]) -> None:
-        from unilab_jax.trainer import Trainer
+        from unilab_jax.training.trainer import Trainer
 
         if plan["teacher_done"]:
             print(f"teacher: finished run found in {plan['teacher'][0].logdir}, skipped")

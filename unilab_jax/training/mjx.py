@@ -51,7 +51,7 @@ from unilab_jax import algos
 from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import WALKING, MetricLogger
 from unilab_jax.runtime.ring import StopRequested
-from unilab_jax.trainer import LearnerThread, stop_on_signals, wait_result
+from unilab_jax.training.threads import LearnerThread, stop_on_signals, wait_result
 
 # task name -> module with ``make(config, num_envs)`` (the walking module picks the task from the config's type)
 MJX_TASKS = {"go1_joystick_flat": "tasks.mjx_go1", "go2_joystick_flat": "tasks.mjx_walking",

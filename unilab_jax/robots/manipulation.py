@@ -75,7 +75,7 @@ def shaped_reward(potential: float, previous: float, success: bool, bonus: float
     return float(bonus * float(success) + potential - previous)
 
 
-class RobotTask(abc.ABC):
+class ManipulationTask(abc.ABC):
     """One task on one arm. Subclasses set ``name``, ``episode_length``, ``state_dim``, ``arms``."""
 
     name: str
@@ -142,7 +142,7 @@ def peg_potential(tip: np.ndarray, hole: np.ndarray, g: PegGeometry) -> float:
     return float(0.5 * (reach + align))
 
 
-class PegInsertion(RobotTask):
+class PegInsertion(ManipulationTask):
     """A square peg held rigidly in the closed gripper goes into a hole (1.5 mm clearance per side)
     of a block placed at random on the table."""
 
@@ -213,7 +213,7 @@ def pick_place_potential(obj: np.ndarray, tcp: np.ndarray, bin_pos: np.ndarray, 
     return float((reach + lifted + lifted * over_bin) / 3.0)
 
 
-class PickPlace(RobotTask):
+class PickPlace(ManipulationTask):
     """A small cube at a random position and yaw goes into a bin (placed at random near a fixed spot)."""
 
     name = "pick_place"
@@ -274,10 +274,10 @@ def object_yaw(state: np.ndarray) -> float:
     return yaw_of_quat(state[3:7])
 
 
-TASKS: dict[str, type[RobotTask]] = {PegInsertion.name: PegInsertion, PickPlace.name: PickPlace}
+TASKS: dict[str, type[ManipulationTask]] = {PegInsertion.name: PegInsertion, PickPlace.name: PickPlace}
 
 
-def make_task(name: str, kind: str, dense_reward: bool = False) -> RobotTask:
+def make_task(name: str, kind: str, dense_reward: bool = False) -> ManipulationTask:
     """Task ``name`` (a key of TASKS) for arm ``kind``."""
     if name not in TASKS:
         raise ValueError(f"unknown robot task {name!r}; choose one of {sorted(TASKS)}")

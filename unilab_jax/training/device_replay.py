@@ -18,7 +18,7 @@ Uploads are padded to a power-of-two number of rows (padding rows index past the
 so the donated scatter compiles for a handful of sizes only. Memory: the rings' size once more on the
 device (2M Go1 transitions: ~2.9 GB).
 
-With a data-parallel learner (``parallel``, a :class:`~unilab_jax.sharding.DataParallel`, ``--devices`` > 1)
+With a data-parallel learner (``parallel``, a :class:`~unilab_jax.training.sharding.DataParallel`, ``--devices`` > 1)
 the mirror is replicated on every device of the mesh (each new row is uploaded to each device; memory the
 rings' size per device) and ``gather`` returns the minibatch split along B, as the sharded update takes it:
 each device gathers its own columns from its local copy, with no traffic between devices, and the rows

@@ -2,7 +2,7 @@
 
 An experiment is a few lines::
 
-    from unilab_jax.cli import run_experiment
+    from unilab_jax.apps.cli import run_experiment
     run_experiment(algo="ppo", task="go1_joystick_flat", recipe={"horizon": 24},
                    sized_for=SizedFor("16-core H100 host", 16, 64))
 
@@ -139,7 +139,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     import tasks
     from unilab_jax import algos
     from unilab_jax.config import apply_overrides, parse_overrides
-    from unilab_jax.trainer import RunConfig
+    from unilab_jax.training.trainer import RunConfig
 
     if FLAGS.platform not in PLATFORMS:
         raise FlagError(f"--platform={FLAGS.platform!r}: choose one of {PLATFORMS}")
@@ -201,7 +201,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     if FLAGS.devices != "1":
         if FLAGS.platform != "jax":
             raise FlagError(f"--devices={FLAGS.devices}: data-parallel learners are JAX's (--platform=jax)")
-        from unilab_jax import sharding
+        from unilab_jax.training import sharding
 
         try:
             sharding.check_run(FLAGS.devices, FLAGS.platform, config, module.BUFFER, FLAGS.num_workers,
@@ -286,7 +286,7 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
             print(f"error: {e}", file=sys.stderr)
             sys.exit(2)
         train(validated)
-        from unilab_jax.trainer import learner_busy, stopped_by_signal
+        from unilab_jax.training.threads import learner_busy, stopped_by_signal
 
         if learner_busy() or stopped_by_signal():  # a stopped run: saved and closed, leave without teardown
             logging.shutdown()
@@ -304,7 +304,7 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
     (what it was tuned on) defaults to ``--num_workers=auto``; one that does not, to DEV_VM's 2 x 32."""
 
     def train(parts: tuple) -> None:
-        from unilab_jax.trainer import Trainer
+        from unilab_jax.training.trainer import Trainer
 
         summary = Trainer(*parts, start_time=PROCESS_START).train()
         print(json.dumps(summary, indent=2))

@@ -1,0 +1,281 @@
+"""Deterministic episodes of a policy, and the trainer's evaluations and clips built on them.
+
+``run_episodes`` steps a task's envs through one episode each with a deterministic ``act`` (the trainer's
+evaluations, ``python -m unilab_jax.play``); ``SceneRenderer`` renders one env through the task's
+``render_scene`` hook; ``AsyncEvaluator`` and ``ClipRecorder`` run evaluations and ``--video_every`` clips
+in background threads on weight snapshots, so training is never held up. ``MUJOCO_GL`` is chosen at import,
+before anything imports mujoco (``robots.gl.prefer_headless``).
+"""
+
+from __future__ import annotations
+
+from unilab_jax.robots.gl import prefer_headless
+
+prefer_headless()  # before anything imports mujoco
+
+import logging  # noqa: E402
+import os  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from unilab_jax.runtime.ring import StopRequested  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+
+def _moves_freely(model: Any, body: int) -> bool:
+    """A floating base (free joint) or a planar root (two or more slide joints, e.g. Gymnasium's HalfCheetah
+    and Hopper): the camera follows it. One slider (cart-pole's rail) keeps the whole model in view."""
+    import mujoco
+
+    types = model.jnt_type[model.jnt_bodyid == body]
+    return bool((types == mujoco.mjtJoint.mjJNT_FREE).any() or (types == mujoco.mjtJoint.mjJNT_SLIDE).sum() >= 2)
+
+
+class SceneRenderer:
+    """Renders env ``env`` of a task through its ``render_scene`` hook, with a camera that follows a floating
+    base (locomotion) or frames the whole model (fixed-base tasks such as cart-pole)."""
+
+    def __init__(self, task: Any, width: int = 320, height: int = 240, env: int = 0):
+        import mujoco
+
+        model, _ = task.render_scene(env)
+        self._task, self._env = task, env
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+        try:
+            self._renderer = mujoco.Renderer(model, height, width)
+        except Exception as e:
+            raise RuntimeError(
+                f"cannot create an offscreen renderer ({type(e).__name__}: {e}); MUJOCO_GL="
+                f"{os.environ.get('MUJOCO_GL', '')!r}. Headless Linux needs MUJOCO_GL=egl set before mujoco is "
+                "imported and the EGL packages (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0)"
+            ) from e
+        # Shadows and reflections off: with Mesa's software rasteriser they cost ~7x the rest of a frame
+        # (measured at 320x240 on the 2-core VM: 150 ms vs 20 ms of CPU per Go1 frame).
+        for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION):
+            self._renderer.scene.flags[flag] = 0
+        # Training models keep only collision geoms (tasks strip visual meshes), which sit in group 3: show it.
+        self.option = mujoco.MjvOption()
+        self.option.geomgroup[:4] = 1
+        # Where the stripped meshes were a body's only geoms (G1), its equivalent inertia box stands in.
+        bare = np.setdiff1d(np.flatnonzero(model.body_mass > 0), model.geom_bodyid)
+        self.option.flags[mujoco.mjtVisFlag.mjVIS_INERTIA] = bare.size > 0
+        if model.nlight == 0:  # models without lights (cart-pole) are lit by a brighter headlight
+            model.vis.headlight.ambient[:] = np.maximum(model.vis.headlight.ambient, 0.4)
+            model.vis.headlight.diffuse[:] = np.maximum(model.vis.headlight.diffuse, 0.8)
+        self.camera = mujoco.MjvCamera()
+        if model.njnt and _moves_freely(model, int(model.jnt_bodyid[0])):
+            self.camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+            self.camera.trackbodyid = int(model.jnt_bodyid[0])
+            self.camera.distance = max(1.5, 2.0 * model.stat.extent)
+            self.camera.elevation, self.camera.azimuth = -20.0, 135.0
+        else:
+            self.camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+            self.camera.lookat[:] = model.stat.center
+            self.camera.distance, self.camera.elevation, self.camera.azimuth = 1.1 * model.stat.extent, -10.0, 90.0
+
+    def frame(self) -> np.ndarray:
+        """[H, W, 3] uint8 of the env's current state."""
+        _, data = self._task.render_scene(self._env)
+        self._renderer.update_scene(data, self.camera, self.option)
+        return self._renderer.render().copy()
+
+    def close(self) -> None:
+        self._renderer.close()
+
+
+def deterministic_policy(module: Any, weights: dict, task: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """``obs -> action`` of the deterministic worker policy ``module.act(weights, obs, zeros, True)`` on ``task``'s
+    envs; on a task with images (``spec.image_shape``) it also acts on the task's current ``images()``."""
+    zeros = np.zeros((task.num_envs, task.spec.action_dim), np.float32)
+    if getattr(task.spec, "image_shape", ()):
+        return lambda obs: module.act(weights, obs, zeros, True, image=task.images())[0]
+    return lambda obs: module.act(weights, obs, zeros, True)[0]
+
+
+def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_steps: int | None = None,
+                 render: tuple[int, int] | None = None,
+                 stop: threading.Event | None = None) -> tuple[np.ndarray, dict[str, float]]:
+    """Steps every env of ``task`` with the deterministic ``act(obs) -> action`` through its first episode (at
+    most ``max_steps`` control steps), rendering env 0 before every step of its episode when ``render`` is
+    ``(width, height)``. Returns (frames [T, H, W, 3] uint8, T = env 0's steps, empty without ``render``;
+    stats: ``return``/``return_std``/``episode_length`` over the ``episodes`` (envs), ``success_rate`` on tasks
+    whose termination is success, the ``LOGGED`` entries of the task's own metric where it has one
+    (``task.eval_tracker()``, e.g. ``g1_track``'s clip completion), else the walking metric on locomotion tasks).
+    The trainer's evaluations run it too; ``stop`` set before the episodes end raises :class:`StopRequested`."""
+    from tasks.walking import WalkingTracker, is_locomotion
+
+    m = task.num_envs
+    limit = task.spec.episode_length if max_steps is None else min(int(max_steps), task.spec.episode_length)
+    if limit < 1:
+        raise ValueError(f"steps must be positive, got {max_steps}")
+    tracker = (task.eval_tracker() if hasattr(task, "eval_tracker")
+               else WalkingTracker(task) if is_locomotion(task) else None)
+    step = tracker.step if tracker is not None else task.step
+    renderer = SceneRenderer(task, *render) if render is not None else None
+    try:
+        obs, _ = task.reset()
+        ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
+        alive, terminated = np.ones(m, dtype=bool), np.zeros(m, dtype=bool)
+        frames = []
+        for _ in range(limit):
+            if stop is not None and stop.is_set():
+                raise StopRequested("evaluation stopped")
+            if renderer is not None and alive[0]:
+                frames.append(renderer.frame())
+            out = step(np.asarray(act(obs), np.float32))
+            ret += np.where(alive, out.reward, 0.0)
+            length += alive
+            terminated |= alive & out.terminated
+            alive &= ~(out.terminated | out.truncated)
+            obs = out.obs
+            if not alive.any():
+                break
+    finally:
+        if renderer is not None:
+            renderer.close()
+    stats = {"return": float(ret.mean()), "return_std": float(ret.std()), "episode_length": float(length.mean()),
+             "episodes": float(m)}
+    if task.spec.success_on_termination:
+        stats["success_rate"] = float(terminated.mean())
+    if tracker is not None:
+        metric = tracker.result()
+        stats.update({k: metric[k] for k in tracker.LOGGED})
+    shape = (0, render[1], render[0], 3) if render is not None else (0, 0, 0, 3)
+    return (np.stack(frames) if frames else np.zeros(shape, np.uint8)), stats
+
+
+def fps_of(spec: Any) -> int:
+    """Real-time frame rate of a video with one frame per control step of a task with this TaskSpec."""
+    return max(1, round(1.0 / spec.ctrl_dt))
+
+
+def write_video(frames: np.ndarray, path: str, fps: int) -> None:
+    """Writes frames [T, H, W, 3] uint8 as an H.264 mp4 (the ffmpeg binary comes with imageio-ffmpeg)."""
+    import warnings
+
+    import imageio.v2 as imageio
+
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.shape[0] == 0:
+        raise ValueError(f"frames must be [T > 0, H, W, 3], got shape {frames.shape}")
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    # macro_block_size=1 keeps any frame size (the default pads to multiples of 16 with a warning)
+    with warnings.catch_warnings():  # jax warns on any fork once imported; the ffmpeg child only execs
+        warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+        with imageio.get_writer(path, fps=fps, codec="libx264", macro_block_size=1, pixelformat="yuv420p",
+                                ffmpeg_log_level="error") as writer:
+            for f in frames.astype(np.uint8, copy=False):
+                writer.append_data(f)
+
+
+class ClipRecorder:
+    """``--video_every``: while training, a clip of one evaluation episode every ``every`` env steps, recorded in
+    a background thread on a snapshot of the weights (the deterministic policy, env 0 of a fresh one-env
+    instance of the task, at most ``MAX_CLIP_S`` seconds), written to ``<logdir>/videos/step_<N>.mp4`` and to
+    TensorBoard as ``eval/clip``: a strip of ``STRIP_FRAMES`` frames side by side (tensorboardX's
+    ``add_video`` needs moviepy, which is not a dependency). A clip still waiting when a newer one is due is
+    replaced by it, so slow rendering never queues up; a failed clip is logged, training goes on."""
+
+    MAX_CLIP_S = 10.0
+    STRIP_FRAMES = 8
+    WIDTH, HEIGHT = 320, 240
+
+    def __init__(self, trainer: Any, every: int, start_step: int = 0):
+        from concurrent.futures import ThreadPoolExecutor
+
+        if every < 1:
+            raise ValueError(f"video_every must be positive, got {every}")
+        self._trainer, self.every = trainer, int(every)
+        self.next_step = start_step + self.every
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="clip")
+        self._futures: list[Any] = []
+        self.directory = os.path.join(trainer.run.logdir, "videos")
+
+    def due(self, env_steps: int) -> bool:
+        """Whether a clip is due at ``env_steps`` (then the next one is scheduled ``every`` steps later)."""
+        if env_steps < self.next_step:
+            return False
+        while self.next_step <= env_steps:
+            self.next_step += self.every
+        return True
+
+    def submit(self, weights: dict, env_steps: int) -> None:
+        if self._futures and self._futures[-1].cancel():
+            self._futures.pop()
+        self._futures.append(self._pool.submit(self._record, weights, env_steps))
+
+    def _record(self, weights: dict, env_steps: int) -> str | None:
+        import tasks
+
+        tr = self._trainer
+        try:
+            task = tasks.make(tr.run.task, num_envs=1, seed=10_000 + env_steps, overrides=tr.task_overrides)
+            try:
+                frames, _ = run_episodes(task, deterministic_policy(tr.algo, weights, task),
+                                         max_steps=max(1, round(self.MAX_CLIP_S / tr.spec.ctrl_dt)),
+                                         render=(self.WIDTH, self.HEIGHT))
+            finally:
+                task.close()
+            path = os.path.join(self.directory, f"step_{env_steps}.mp4")
+            write_video(frames, path, fps_of(tr.spec))
+            pick = np.linspace(0, len(frames) - 1, min(self.STRIP_FRAMES, len(frames))).round().astype(int)
+            tr.logger.image(env_steps, "eval/clip", np.concatenate(list(frames[pick]), axis=1))
+            return path
+        except Exception:  # a clip is a view on training, never a reason to stop it
+            log.exception("clip at env step %d failed", env_steps)
+            return None
+
+    def close(self, cancel: bool = False) -> list[str]:
+        """Waits for the clip being recorded (and the waiting one unless ``cancel``); returns the files written."""
+        self._pool.shutdown(wait=True, cancel_futures=cancel)
+        return [f.result() for f in self._futures if not f.cancelled() and f.result() is not None]
+
+
+class AsyncEvaluator:
+    """Deterministic evaluations in a background thread on a snapshot of the weights, so lock-step
+    workers are not held up. ``eval/wall_s`` is when the snapshot was taken (the training time that
+    produced the policy); ``eval/done_wall_s`` when its evaluation finished.
+
+    At most one evaluation waits behind the running one: a newer snapshot replaces a waiting one (an
+    evaluation slower than ``--eval_every`` would otherwise queue without bound and hold the end of
+    the run for minutes); ``skipped`` counts the replaced ones. ``close(cancel=True)`` (an interrupted
+    run) drops the waiting one.
+    """
+
+    def __init__(self, trainer: Any, stop: threading.Event | None = None):
+        """``stop``: when set, the running evaluation ends at its next env step (its result is dropped)."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._trainer, self._stop = trainer, stop
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eval")
+        self._futures: list[Any] = []
+        self.skipped = 0
+
+    def submit(self, weights: dict, counters: dict[str, int], wall_s: float) -> None:
+        if self._futures and self._futures[-1].cancel():  # still waiting: replace it with the newer snapshot
+            self._futures.pop()
+            self.skipped += 1
+            log.warning("evaluation at an earlier step skipped: evaluations are slower than --eval_every "
+                        "(%d skipped so far)", self.skipped)
+        self._futures.append(self._pool.submit(self._run, weights, counters, wall_s))
+
+    def _run(self, weights: dict, counters: dict[str, int], wall_s: float) -> dict[str, float]:
+        tr = self._trainer
+        result = tr.evaluate(weights, seed=counters["updates"], stop=self._stop)
+        result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0,
+                       "eval/skipped": float(self.skipped)})
+        tr.logger.log(counters["env_steps"], result)
+        return result
+
+    def close(self, cancel: bool = False) -> dict[str, float]:
+        """Waits for the running evaluation (and the waiting one unless ``cancel``; a stopped run's
+        evaluation ends at its next step); returns the newest finished result ({} if none finished)."""
+        self._pool.shutdown(wait=True, cancel_futures=cancel)
+        done = [f for f in self._futures if not f.cancelled() and not isinstance(f.exception(), StopRequested)]
+        return done[-1].result() if done else {}

@@ -1,0 +1,437 @@
+"""The training loop for trajectory (on-policy) algorithms: PPO and APPO.
+
+Workers collect into shared-memory slots while the learner updates; a prefetch thread pulls the
+next batch and moves it to the device while the jitted update of the previous one runs. In
+lock-step mode the workers wait for the new weights; in async mode they never wait and the
+policy lag (learner version minus the version that produced each transition) is logged.
+
+Stopping: SIGINT and SIGTERM set a stop flag that every wait of the main thread checks. The learner's
+own calls (the update, whose first call compiles, and the weight download) run in a dedicated thread
+(:class:`LearnerThread`), so a stop never waits long for them: an update in flight gets
+``_STOP_GRACE_S`` to finish (a steady GPU update takes milliseconds), then it is abandoned, the state
+saved is the one of the last completed update, and the process leaves the abandoned call behind
+(``learner_busy()``). After a stopped run the CLI exits without the interpreter's teardown: it would wait
+for an abandoned call, and once (a fresh-clone CI) it aborted (exit -6) in third-party teardown after a
+complete summary; everything the run owns is saved and closed by then. Updates donate their input only on
+accelerators, where the one call that can outlast the grace is the first compile, before any
+donation; on the CPU, where an update can take minutes, nothing is donated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import os
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from unilab_jax import algos, nets
+from unilab_jax.fields import prior_fields, replay_fields
+from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
+from unilab_jax.runtime.ring import StopRequested
+from unilab_jax.training.evaluation import AsyncEvaluator
+from unilab_jax.training.sources import ReplaySource, TrajectorySource
+from unilab_jax.training.threads import LearnerThread, Prefetcher, stop_on_signals
+from unilab_jax.xp import tree_leaves
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """Everything about a run that is not an algorithm or task hyperparameter."""
+
+    algo: str
+    task: str
+    platform: str = "jax"
+    num_workers: int = 2
+    envs_per_worker: int = 32
+    total_steps: int = 100_000
+    seed: int = 0
+    logdir: str = "runs/default"
+    resume: bool = False
+    eval_every: int = 0  # env steps between evaluations (0: only at the end)
+    eval_envs: int = 16
+    checkpoint_every: int = 0  # env steps between checkpoints (0: at evaluations and at the end)
+    video_every: int = 0  # env steps between clips of an evaluation episode (apps/play.py ClipRecorder; 0: none)
+    serial: bool = False  # run the workers in-process (debugging, deterministic tests)
+    # Persistent replay (off-policy algorithms; unilab_jax/runtime/replay_store.py): every transition is
+    # also written to a crash-safe store in replay_dir, which --resume reopens.
+    replay_dir: str = ""  # "" keeps replay in shared memory only
+    replay_disk_gb: float = 10.0  # disk budget of the store; the oldest chunks are deleted past it
+    replay_hot_fraction: float = 0.5  # share of each minibatch drawn from the shared-memory rings
+    replay_chunk_rows: int = 0  # transitions per committed chunk (0: ~16 MiB); a SIGKILL loses at most one
+    # Off-policy, JAX learner: mirror the rings in accelerator memory and sample there (training/device_replay.py).
+    # "auto": on when JAX's default backend is not the CPU and there is no replay_dir; "on" / "off" force it.
+    replay_on_device: str = "auto"
+    # Off-policy: "hold" pauses the workers when the learner falls more than ``utd_window`` env steps behind
+    # the recipe's update-to-data ratio (the same learning per env step on any machine); "free" lets them
+    # run on (a learner slower than ``utd`` x the env rate then trains below the ratio). See ReplaySource.
+    utd_mode: str = "hold"
+    utd_window: int = 0  # env steps the workers may run ahead of the ratio (0: four learner calls' worth)
+    # Worker CPU affinity: -1 none; K >= 0: workers pinned to the usable CPUs except the first K, which stay free
+    # for the learner process (runtime/pool.py cpu_placement).
+    pin_cpus: int = -1
+    # JAX learner: "1" (one device, the plain path), "N" or "all": data-parallel over the first N local devices
+    # (unilab_jax/training/sharding.py; the batch axis must divide evenly).
+    devices: str = "1"
+    # Off-policy: rollouts on every node of a Ray cluster ("auto" or HOST:PORT of its head; "" = this host only,
+    # Ray not imported). The learner's node runs num_workers workers, every other node ray_workers_per_host
+    # (0: num_workers). unilab_jax/runtime/ray_pool.py.
+    ray_address: str = ""
+    ray_workers_per_host: int = 0
+
+
+def _learner_platform(platform: str) -> Any:
+    """Backend used to convert numpy batches for the learner."""
+    from unilab_jax import xp as shim
+
+    return shim.get(platform)
+
+
+def _donated(tree: Any) -> bool:
+    """Whether any leaf is a JAX array whose buffer was donated to a computation."""
+    return any(getattr(leaf, "is_deleted", lambda: False)() for leaf in tree_leaves(tree))
+
+
+class Trainer:
+    _STOP_GRACE_S = 2.0  # after a stop, how long the loop still waits for the update in flight
+    def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
+                 start_time: float | None = None, eval_overrides: dict[str, Any] | None = None):
+        """``start_time``: wall clock that ``time/wall_s`` and ``eval/wall_s`` count from (the process
+        start when launched from the CLI, so compilation and worker start-up are included).
+        ``eval_overrides``: task overrides added for evaluations only (e.g. robot tasks evaluating on
+        the robots that answer, ``min_envs``)."""
+        import tasks
+
+        self.t0 = time.time() if start_time is None else start_time
+
+        self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, task_overrides
+        self.eval_overrides = {**task_overrides, **(eval_overrides or {})}
+        probe = tasks.make(run.task, num_envs=1, seed=run.seed, overrides=task_overrides)
+        self.spec = probe.spec
+        probe.close()
+        self.xp = _learner_platform(run.platform)
+        self.learner = algos.make_learner(algo_module, run.platform, algo_config, self.spec)
+        self.parallel = None  # the DataParallel learner of --devices > 1
+        if run.devices != "1":
+            from unilab_jax.training import sharding
+
+            self.parallel = sharding.for_run(self.learner, run, algo_config, algo_module.BUFFER)
+            self.learner = self.parallel or self.learner
+        self.batch_xp = self.parallel or self.xp  # what the batch sources place host arrays with (from_numpy)
+        self.logger = MetricLogger(run.logdir)
+        self.ckpt_dir = os.path.join(os.path.abspath(run.logdir), "checkpoints")
+        self._stop = threading.Event()
+        self._resumed_meta: dict[str, Any] = {}  # meta of the checkpoint this run resumed from
+
+    # -- state -----------------------------------------------------------------------------------
+    def _init_state(self) -> tuple[Any, dict[str, int]]:
+        state = self.learner.init(self.xp.random.key(self.run.seed))
+        counters = {"env_steps": 0, "updates": 0, "version": 0, "episodes": 0}
+        if self.run.resume:
+            from unilab_jax.checkpoint import Checkpointer
+
+            ckpt = Checkpointer(self.ckpt_dir)
+            if ckpt.latest_step() is None:
+                raise FileNotFoundError(f"--resume: no checkpoint under {self.ckpt_dir}")
+            state, meta = ckpt.restore(state, lambda a, like: self.xp.from_numpy(a))
+            ckpt.close()
+            if self.parallel is not None:
+                state = self.parallel.replicate(state)
+            self._resumed_meta = meta
+            counters = {k: int(v) for k, v in meta["counters"].items()}
+            if meta.get("task") != self.run.task or meta.get("algo") != self.run.algo:
+                raise ValueError(f"--resume: checkpoint is {meta.get('algo')}/{meta.get('task')}, "
+                                 f"not {self.run.algo}/{self.run.task}")
+        return state, counters
+
+    def _meta(self, counters: dict[str, int], source: Any = None) -> dict[str, Any]:
+        meta = {"counters": dict(counters), "algo": self.run.algo, "task": self.run.task,
+                "run": dataclasses.asdict(self.run), "config": dataclasses.asdict(self.config),
+                "task_overrides": {k: str(v) for k, v in self.task_overrides.items()}}
+        replay = source.checkpoint_meta() if source is not None else None
+        if replay is not None:
+            meta["replay"] = replay
+        return meta
+
+    def _device_replay(self, pool: Any) -> Any:
+        """The accelerator-side replay mirror, or None (see ``RunConfig.replay_on_device``)."""
+        mode = self.run.replay_on_device
+        if mode not in ("auto", "on", "off"):
+            raise ValueError(f"replay_on_device must be auto, on or off, got {mode!r}")
+        if mode == "off" or self.run.platform != "jax" or self.run.replay_dir:
+            if mode == "on":
+                raise ValueError("replay_on_device=on needs the jax platform and no replay_dir")
+            return None
+        import jax
+
+        if mode == "auto" and jax.default_backend() == "cpu":
+            return None
+        from unilab_jax.training.device_replay import DeviceReplay
+
+        return DeviceReplay(pool.buffer, replay_fields(self.spec), self.parallel)
+
+    def _row_layout(self, names: tuple[str, ...]) -> dict[str, Any]:
+        """The (shape, dtype) of the transition fields ``names`` for this run's task and algorithm."""
+        from unilab_jax.runtime.buffers import transition_layout
+
+        fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
+        return {k: fields[k] for k in names}
+
+    def _open_replay_store(self) -> Any:
+        """The persistent replay store of ``run.replay_dir`` (None when off).
+
+        A fresh run refuses a store that already holds transitions (of an earlier run: pass
+        ``--resume``), and any run refuses a store of another task.
+        """
+        run = self.run
+        if not run.replay_dir:
+            return None
+        from unilab_jax.runtime.replay_store import ReplayStore
+
+        store = ReplayStore(run.replay_dir, self._row_layout(replay_fields(self.spec)),
+                            chunk_rows=run.replay_chunk_rows, max_bytes=int(run.replay_disk_gb * 1e9),
+                            info={"task": run.task, "algo": run.algo})
+        problem = None
+        if store.info.get("task") != run.task:
+            problem = f"it holds transitions of task {store.info.get('task')!r}"
+        elif store.committed and not run.resume:
+            problem = (f"it already holds {store.committed} transitions of an earlier run; pass --resume to "
+                       "continue that run, or choose an empty directory")
+        if problem:
+            store.close()
+            raise ValueError(f"replay_dir={run.replay_dir!r}: {problem}")
+        recorded = (self._resumed_meta.get("replay") or {}).get("store_committed")
+        if recorded is not None and store.committed != recorded:
+            log.warning("replay store %s: %d transitions committed, the checkpoint recorded %d (%s)", run.replay_dir,
+                        store.committed, recorded, "kept: written after the checkpoint" if store.committed > recorded
+                        else "chunks were lost or the directory changed")
+        return store
+
+    def _load_prior(self) -> dict[str, np.ndarray] | None:
+        """The prior data of ``config.prior_dir`` (RLPD's symmetric sampling; None when the algorithm has none)."""
+        directory = getattr(self.config, "prior_dir", "")
+        if not directory:
+            return None
+        from unilab_jax.runtime.prior import load_prior
+
+        prior = load_prior(directory, self._row_layout(prior_fields(self.spec)))
+        log.info("prior data: %d transitions from %s", len(prior["reward"]), directory)
+        return prior
+
+    # -- evaluation ------------------------------------------------------------------------------
+    def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
+        """Deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the
+        task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
+        before it ends."""
+        import tasks
+        from unilab_jax.training.evaluation import deterministic_policy, run_episodes
+
+        task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
+                          overrides=self.eval_overrides)
+        if hasattr(task, "set_operator"):  # the policy alone: no operator interventions while evaluating
+            task.set_operator("off")
+        try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
+            _, stats = run_episodes(task, deterministic_policy(self.algo, weights, task), stop=stop)
+        finally:
+            task.close()
+        result = {f"eval/{k}": v for k, v in stats.items()}
+        if "tracking_error" in stats:  # locomotion: the walking criterion on the same episodes
+            result["eval/walking"] = float(WALKING.met(stats))  # 1: it walks
+        return result
+
+    # -- the loop ----------------------------------------------------------------------------------
+    def train(self) -> dict[str, Any]:
+        from unilab_jax.checkpoint import Checkpointer
+        from unilab_jax.runtime.pool import WorkerPool, cpu_placement
+        from unilab_jax.runtime.weights import WeightPublisher
+        from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
+
+        run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
+        evaluator = AsyncEvaluator(self, stop)
+        learner = LearnerThread(run.platform)
+        state, counters = self._init_state()
+        weights = nets.to_numpy(self.learner.weights(state))
+        clips = None
+        if run.video_every:
+            from unilab_jax.training.evaluation import ClipRecorder
+
+            clips = ClipRecorder(self, run.video_every, counters["env_steps"])
+        replay = self.algo.BUFFER == "replay"
+        hold_window = self._hold_window(cfg) if replay else None
+        # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
+        store = self._open_replay_store() if replay else None
+        prior = self._load_prior() if replay else None
+        pool_kwargs = dict(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
+                           envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
+                           algo_module=self.algo.__name__, weight_template=weights,
+                           horizon=getattr(cfg, "horizon", 32), serial=run.serial,
+                           replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
+                           if replay else 0,
+                           max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
+        if run.ray_address:
+            from unilab_jax.runtime.ray_pool import RayPool
+
+            pool = RayPool(run.ray_address, workers_per_host=run.ray_workers_per_host or None, **pool_kwargs)
+        else:
+            pool = WorkerPool(**pool_kwargs, worker_cpus=cpu_placement(run.num_workers, run.pin_cpus)
+                              if run.pin_cpus >= 0 and not run.serial else None)
+        # Large weights of an asynchronous run are written by a background thread (the learner updates on);
+        # lock-step, serial and Ray runs publish inline.
+        publisher = (WeightPublisher(pool.publish) if replay and isinstance(pool, WorkerPool) and not run.serial
+                     and pool.weights.nbytes >= PREFETCH_MIN_BYTES else None)
+        ckpt = Checkpointer(self.ckpt_dir)
+        restore_signals = stop_on_signals(stop)
+        next_eval = counters["env_steps"] + run.eval_every if run.eval_every else None
+        next_ckpt = counters["env_steps"] + run.checkpoint_every if run.checkpoint_every else None
+        last_eval: dict[str, float] = {}
+        evaluated_at = -1  # env steps of the last periodic evaluation
+        interrupted = False
+        diverged: LearningDiverged | None = None
+        prefetch: Prefetcher | None = None
+        source: ReplaySource | TrajectorySource | None = None
+        progress = ProgressBar(run.total_steps, counters["env_steps"])
+        try:
+            pool.start(stop=stop.is_set)
+            # The source before the first weights: replay workers wait for them, so a held run's step
+            # limit is in place before any env step.
+            source = (ReplaySource(pool, self.batch_xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
+                                    self._resumed_meta.get("replay"), self._device_replay(pool),
+                                    total_steps=run.total_steps, hold_window=hold_window, prior=prior)
+                      if replay else TrajectorySource(pool, self.batch_xp, self.spec.reward_terms))
+            pool.publish(weights, counters["version"])
+            prefetch = Prefetcher(source.produce, inline=run.serial)
+            t_last, steps_last = time.time(), counters["env_steps"]
+            while counters["env_steps"] < run.total_steps and not stop.is_set():
+                t_wait = time.perf_counter()
+                batch, stats = prefetch.get(stop)
+                t_update = time.perf_counter()
+                state, scalars = learner.call(stop, self._update, state, batch, grace_s=self._STOP_GRACE_S)
+                t_publish = time.perf_counter()
+                counters["updates"] += 1
+                publish = source.advance(counters, stats)
+                bad = sorted(k for k, v in scalars.items() if not math.isfinite(v))
+                if bad:  # before the weights reach the workers or a checkpoint
+                    raise LearningDiverged(bad, counters, ckpt.latest_step())
+                if publish:
+                    counters["version"] += 1
+                    host = learner.call(stop, self._numpy_weights, state)
+                    (publisher.submit if publisher is not None else pool.publish)(host, counters["version"])
+                now = time.time()
+                scalars.update({"perf/learner_wait_s": t_update - t_wait, "perf/update_s": t_publish - t_update,
+                                "perf/publish_s": time.perf_counter() - t_publish})
+                scalars.update(stats["scalars"])
+                scalars.update(source.pool_scalars())
+                if self.spec.success_on_termination and "episode/terminated_fraction" in scalars:
+                    scalars["episode/success_rate"] = scalars["episode/terminated_fraction"]
+                scalars.update({"perf/env_steps_per_s": (counters["env_steps"] - steps_last) / max(now - t_last, 1e-9),
+                                "perf/learner_updates_per_s": 1.0 / max(now - t_last, 1e-9),
+                                "time/wall_s": now - t_start})
+                t_last, steps_last = now, counters["env_steps"]
+                self.logger.log(counters["env_steps"], scalars)
+                progress.update(counters["env_steps"], scalars.get("episode/return"))
+                if next_eval is not None and counters["env_steps"] >= next_eval:
+                    evaluator.submit(learner.call(stop, self._numpy_weights, state), dict(counters),
+                                     time.time() - t_start)
+                    evaluated_at = counters["env_steps"]
+                    next_eval += run.eval_every
+                    ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+                if clips is not None and clips.due(counters["env_steps"]):
+                    clips.submit(learner.call(stop, self._numpy_weights, state), counters["env_steps"])
+                if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
+                    ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+                    next_ckpt += run.checkpoint_every
+        except (KeyboardInterrupt, StopRequested):
+            interrupted = True
+        except LearningDiverged as e:
+            diverged = e
+        finally:
+            progress.close()
+            if prefetch is not None:
+                prefetch.stop()
+            if source is not None:
+                source.stop()  # the last spill to disk, while the rings still exist
+            if publisher is not None:
+                publisher.close()
+            pool.close()
+            if prefetch is not None:
+                prefetch.join()
+            if diverged is None:  # a diverged state is not saved: the last checkpoint stands
+                self._final_save(ckpt, counters, state, source)
+            ckpt.close()
+            if store is not None:
+                store.close()
+            learner.close()
+            restore_signals()
+        interrupted = interrupted or stop.is_set() or diverged is not None
+        if not interrupted and evaluated_at != counters["env_steps"]:
+            evaluator.submit(self._numpy_weights(state), dict(counters), time.time() - t_start)
+        last_eval = evaluator.close(cancel=interrupted)
+        if clips is not None:
+            clips.close(cancel=interrupted)
+        self.logger.close()
+        summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
+                   "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
+                   "checkpoints": self.ckpt_dir, "interrupted": interrupted, **last_eval}
+        if diverged is not None:
+            summary["diverged"] = str(diverged)
+        with open(os.path.join(run.logdir, "summary.json"), "w") as f:
+            json.dump(summary, f, indent=2)
+        if diverged is not None:
+            raise diverged
+        return summary
+
+    def _final_save(self, ckpt: Any, counters: dict[str, int], state: Any, source: Any) -> None:
+        """The end-of-run checkpoint. On an accelerator the update donates its input, so when a stop left
+        an update running (a first compile that outlasted ``_STOP_GRACE_S``) the state's buffers may now be
+        the update's: then the last checkpoint written stands, and a warning says which."""
+        try:
+            if not _donated(state):
+                ckpt.save(counters["env_steps"], state, self._meta(counters, source))
+                return
+        except Exception:
+            if not _donated(state):
+                raise
+        log.warning("final checkpoint skipped: the update left running took the state's buffers; the last "
+                    "checkpoint (env step %s) stands", ckpt.latest_step())
+
+    def _update(self, state: Any, batch: dict) -> tuple[Any, dict[str, float]]:
+        """One learner update and its losses as floats (which waits for the update to finish)."""
+        state, metrics = self.learner.update(state, batch)
+        return state, {f"loss/{k}": float(v) for k, v in metrics.items()}
+
+    def _hold_window(self, cfg: Any) -> int | None:
+        """Env steps the replay workers may run ahead of ``utd``; None in "free" mode. The default, four
+        learner calls' worth (at least four steps of every env), absorbs the jitter of a learner that
+        keeps pace on average."""
+        if self.run.utd_mode not in ("hold", "free"):
+            raise ValueError(f"utd_mode must be hold or free, got {self.run.utd_mode!r}")
+        if self.run.utd_mode == "free":
+            return None
+        if self.run.utd_window < 0:
+            raise ValueError(f"utd_window must be >= 0, got {self.run.utd_window}")
+        return self.run.utd_window or max(4 * math.ceil(cfg.updates_per_call / cfg.utd),
+                                          4 * self.run.num_workers * self.run.envs_per_worker)
+
+    def _numpy_weights(self, state: Any) -> dict:
+        return nets.to_numpy(self.learner.weights(state))
+
+
+class LearningDiverged(FloatingPointError):
+    """An update returned a non-finite loss. The trainer stops at once, saves no checkpoint of the
+    diverged state (the last one written stands), flushes the metrics, writes ``summary.json`` with
+    ``"diverged"`` set to this message, and raises this error."""
+
+    def __init__(self, names: list[str], counters: dict[str, int], last_checkpoint: int | None):
+        where = (f"the last checkpoint, env step {last_checkpoint}, stands" if last_checkpoint is not None
+                 else "no checkpoint was written before it")
+        super().__init__(f"learning diverged: non-finite {', '.join(names)} at update {counters['updates']} "
+                         f"(env step {counters['env_steps']}); {where}. Lower the learning rates or the "
+                         "update-to-data ratio, or clip gradients (max_grad_norm), and --resume.")
+        self.names = names
