@@ -66,7 +66,8 @@ DEFAULT_MD = os.path.join(HERE, "results", "time_to_target.md")
 # name -> kind, script, extra flags. Heterogeneous runs get --num_workers and --envs_per_worker (the config's
 # "envs_per_worker", 128 if it names none, unless given on the command line): the off-policy recipes use 64
 # envs per worker, as in FastTD3/FastSAC's ~1024 parallel envs. The off-policy "_async" configurations run the
-# workers free (as when they were first measured); "fastsac_hold" holds the recipe's update-to-data ratio.
+# workers free (as when they were first measured); "fastsac_hold" holds the recipe's update-to-data ratio (--utd_mode's
+# default). The MJX runs step the scripts' default number of envs (8192 for PPO, 1024 for FastSAC).
 # "return_target": whether --target (an evaluation return on Go1's reward scale) is a goal besides walking.
 # The MJX baselines evaluate as many episodes as the off-policy runs they are compared with (64): the walking
 # criterion's falls bound (2%) allows one fall in 64 episodes and none in 32 (the a3435e9 MJX run had 32).
@@ -80,17 +81,15 @@ CONFIGS: dict[str, dict[str, Any]] = {
                       "flags": ["--utd_mode=free"]},
     "flashsac_async": {**_OFFPOLICY, "script": "experiments/flashsac_go1.py", "return_target": True,
                        "flags": ["--utd_mode=free"]},
-    "fastsac_hold": {**_OFFPOLICY, "script": "experiments/fastsac_go1.py", "return_target": True,
-                     "flags": ["--utd_mode=hold"]},
+    "fastsac_hold": {**_OFFPOLICY, "script": "experiments/fastsac_go1.py", "return_target": True},
     "go2_flashsac": {**_OFFPOLICY, "script": "experiments/flashsac_go2.py", "return_target": False,
                      "flags": ["--utd_mode=free"]},
     "g1_fastsac": {**_OFFPOLICY, "script": "experiments/fastsac_g1.py", "return_target": False,
                    "flags": ["--utd_mode=free"]},
     "mjx_ppo": {"kind": "mjx", "sync": "lockstep", "script": "experiments/ppo_go1_mjx.py", "eval_every": 10_000_000,
-                "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True, "flags": ["--num_envs=8192"]},
+                "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True},
     "mjx_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
-                    "eval_every": 2_000_000, "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True,
-                    "flags": ["--num_envs=1024"]},
+                    "eval_every": 2_000_000, "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True},
 }
 SOURCES = ("tasks/go1_joystick.py", "tasks/mjx_go1.py", "tasks/walking.py", "tasks/go2_joystick.py", "tasks/g1_walk.py",
            "tasks/physics.py", "unilab_jax/training/trainer.py", "unilab_jax/metrics.py",

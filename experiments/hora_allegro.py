@@ -14,10 +14,11 @@ from ppo_allegro_rotate import TASK_RECIPE as PPO_TASK_RECIPE
 from unilab_jax.apps.hora_cli import run_hora
 
 # Rotation and fall terms only and the object's state in the extrinsics, as the PPO recipe; but the frames stay
-# proprioceptive (the student's history must not hold the extrinsics): the teacher sees them through z only.
-TASK_RECIPE = {**PPO_TASK_RECIPE, "actor_extrinsics": False, "history_extrinsics": True}
-TEACHER_RECIPE = {**PPO_RECIPE, "encoder_hidden": (256, 128), "z_dim": 8}  # HORA's encoder, 8-dim z
-STUDENT_RECIPE = {"horizon": 16, "learning_rate": 1e-3, "num_epochs": 2, "num_minibatches": 4}
+# proprioceptive (the student's history must not hold the extrinsics): the teacher sees them through z only
+# (the history variant appends them after the frames: history_extrinsics, its default).
+TASK_RECIPE = {**PPO_TASK_RECIPE, "actor_extrinsics": False}
+TEACHER_RECIPE = PPO_RECIPE  # HORA's encoder (256, 128) and 8-dim z are hora_teacher's defaults
+STUDENT_RECIPE = {"horizon": 16}  # else hora_student's defaults: lr 1e-3, 2 epochs x 4 minibatches
 
 if __name__ == "__main__":
     run_hora(task="allegro_rotate_hist", teacher_recipe=TEACHER_RECIPE, student_recipe=STUDENT_RECIPE,

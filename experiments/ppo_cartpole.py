@@ -8,8 +8,7 @@ the machine instead).
 
 from unilab_jax.apps.cli import run_experiment
 
-RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "horizon": 32, "learning_rate": 1e-3,
-          "num_epochs": 5, "num_minibatches": 4, "ent_coef": 0.0, "gamma": 0.98, "desired_kl": 0.01}
+RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "horizon": 32, "ent_coef": 0.0, "gamma": 0.98}
 
 if __name__ == "__main__":
     run_experiment(algo="ppo", task="cartpole_balance", recipe=RECIPE, default_total_steps=200_000)

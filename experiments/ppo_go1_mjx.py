@@ -4,7 +4,7 @@
 
 Same PPO (loss, networks, learner update) and hyperparameters as ``ppo_go1.py`` on the CPU runtime, with
 MuJoCo Playground's data regime for its Go1 PPO: 8192 envs, unrolls of 20 steps, 4 epochs x 32 minibatches
-per iteration (163,840 transitions).
+per iteration (163,840 transitions; 8192 envs: ``run_mjx_experiment``'s default).
 """
 
 from ppo_go1 import RECIPE
@@ -14,5 +14,4 @@ from unilab_jax.apps.mjx_cli import run_mjx_experiment
 MJX_RECIPE = {**RECIPE, "horizon": 20, "num_epochs": 4, "num_minibatches": 32}
 
 if __name__ == "__main__":
-    run_mjx_experiment(algo="ppo", task="go1_joystick_flat", recipe=MJX_RECIPE, default_total_steps=200_000_000,
-                       default_num_envs=8192)
+    run_mjx_experiment(algo="ppo", task="go1_joystick_flat", recipe=MJX_RECIPE, default_total_steps=200_000_000)

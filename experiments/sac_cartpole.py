@@ -17,9 +17,8 @@ steps instead of ~8k.
 from unilab_jax.apps.cli import run_experiment
 
 RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
-          "publish_every": 32, "utd": 0.0125, "learning_starts": 5_000, "replay_capacity": 1_000_000,
-          "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3,
-          "gamma": 0.98, "tau": 0.02}
+          "publish_every": 32, "utd": 0.0125, "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3,
+          "alpha_learning_rate": 1e-3, "gamma": 0.98, "tau": 0.02}
 
 if __name__ == "__main__":
-    run_experiment(algo="sac", task="cartpole_balance", recipe=RECIPE, default_total_steps=1_000_000)
+    run_experiment(algo="sac", task="cartpole_balance", recipe=RECIPE)  # 1M env steps: run_experiment's default

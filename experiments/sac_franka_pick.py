@@ -13,9 +13,9 @@ Learning shows while it trains: ``episode/success_rate`` is the success rate of 
 
 from unilab_jax.apps.robot_cli import run_robot_experiment
 
-RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 128, "updates_per_call": 8,
-          "publish_every": 8, "utd": 0.5, "learning_starts": 500, "replay_capacity": 200_000,
-          "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3, "gamma": 0.95}
+RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 128, "utd": 0.5, "learning_starts": 500,
+          "replay_capacity": 200_000, "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3,
+          "alpha_learning_rate": 1e-3, "gamma": 0.95}
 
 if __name__ == "__main__":
     run_robot_experiment("sac", "robot_pick_place", RECIPE, default_total_steps=50_000)

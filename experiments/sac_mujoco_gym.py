@@ -1,7 +1,8 @@
 """SAC on Gymnasium's MuJoCo benchmarks (``gym:HalfCheetah-v5`` by default; ``--task=gym:Hopper-v5``,
 ``gym:Walker2d-v5``, ``gym:Ant-v5``, ``gym:Humanoid-v5`` ...), with the hyperparameters of the SAC paper
 (Haarnoja et al. 2018: 256-256 networks, lr 3e-4, batch 256, gamma 0.99, tau 0.005, one gradient step per
-transition, learned temperature); learning starts after 10k transitions.
+transition, learned temperature); learning starts after 10k transitions. SAC's defaults but for the batch and
+the start of learning.
 
     python experiments/sac_mujoco_gym.py --num_workers=2 --envs_per_worker=4 --logdir=runs/sac_halfcheetah
 
@@ -11,10 +12,7 @@ few environments suffice (``--utd_mode=hold`` holds the ratio on any machine). N
 
 from unilab_jax.apps.cli import run_experiment
 
-RECIPE = {"actor_hidden": (256, 256), "critic_hidden": (256, 256), "batch_size": 256, "updates_per_call": 8,
-          "publish_every": 8, "utd": 1.0, "learning_starts": 10_000, "replay_capacity": 1_000_000,
-          "actor_learning_rate": 3e-4, "critic_learning_rate": 3e-4, "alpha_learning_rate": 3e-4,
-          "gamma": 0.99, "tau": 0.005}
+RECIPE = {"batch_size": 256, "learning_starts": 10_000}
 
 if __name__ == "__main__":
-    run_experiment(algo="sac", task="gym:HalfCheetah-v5", recipe=RECIPE, default_total_steps=1_000_000)
+    run_experiment(algo="sac", task="gym:HalfCheetah-v5", recipe=RECIPE)  # 1M env steps: run_experiment's default

@@ -12,7 +12,5 @@ from sac_franka_pick import RECIPE
 
 from unilab_jax.apps.robot_cli import run_robot_experiment
 
-FLOW_RECIPE = {**RECIPE, "flow_steps": 4}
-
 if __name__ == "__main__":
-    run_robot_experiment("sacflow", "robot_pick_place", FLOW_RECIPE, default_total_steps=50_000)
+    run_robot_experiment("sacflow", "robot_pick_place", RECIPE, default_total_steps=50_000)

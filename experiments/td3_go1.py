@@ -13,10 +13,8 @@ from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
 RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 8192,
-          "utd": 8 / 1024, "updates_per_call": 8, "publish_every": 8, "replay_capacity": 2_097_152,
-          "learning_starts": 16_384, "gamma": 0.97, "tau": 0.1, "explore_std": 0.2, "policy_noise": 0.2,
-          "noise_clip": 0.5, "policy_delay": 2, "weight_decay": 0.1, "actor_learning_rate": 3e-4,
-          "critic_learning_rate": 3e-4}
+          "utd": 8 / 1024, "replay_capacity": 2_097_152, "learning_starts": 16_384, "gamma": 0.97, "tau": 0.1,
+          "explore_std": 0.2, "weight_decay": 0.1}
 
 if __name__ == "__main__":
     run_experiment(algo="td3", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
