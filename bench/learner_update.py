@@ -201,10 +201,11 @@ def main() -> None:
                     help="JAX compute dtypes to measure (MLX: float32 only)")
     ap.add_argument("--sizes", default="go1", choices=sorted(SIZES), help="task observation / action sizes")
     ap.add_argument("--ppo_envs", type=int, default=1024, help="B of the PPO batch [24, B]")
-    ap.add_argument("--offpolicy_batch", type=int, default=4096)
+    ap.add_argument("--offpolicy_batch", type=int, default=None, help="off-policy batch size (default: the "
+                    "recipe's with --recipe, else 4096); a recipe's own batch_size wins over it")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--recipe", help="experiment script (e.g. experiments/fastsac_go1.py) whose RECIPE overrides the "
-                    "defaults of the algorithms named by --algos (its batch_size wins over --offpolicy_batch)")
+                    "defaults of the algorithms named by --algos")
     ap.add_argument("--config", action="append", default=[], help="algorithm override key=value after the recipe "
                     "(repeatable), e.g. updates_per_call=32")
     ap.add_argument("--profile_dir", default="", help="JAX: also trace 3 steady calls per algorithm and dtype with "
@@ -223,7 +224,8 @@ def main() -> None:
             steps = config.num_epochs * config.num_minibatches
             shape = f"[{config.horizon}, {args.ppo_envs}], {config.num_epochs}x{config.num_minibatches} minibatches"
         else:
-            config = apply_overrides(module.Config(), {"batch_size": args.offpolicy_batch, **recipe})
+            batch_size = args.offpolicy_batch or (None if args.recipe else 4096)  # None: the recipe's config
+            config = apply_overrides(module.Config(), {**({"batch_size": batch_size} if batch_size else {}), **recipe})
             batch = _replay_batch(rng, config.updates_per_call, config.batch_size, spec)
             steps = config.updates_per_call
             shape = f"[{config.updates_per_call}, {config.batch_size}] ({config.updates_per_call} gradient steps)"

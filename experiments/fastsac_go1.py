@@ -8,16 +8,13 @@ decay 0.1, temperature starting at 0.001. The support is sized for Go1's return 
 +-10: rewards are clipped >= 0 and at most ~0.03 per step, so 0.97-discounted returns lie in [0, ~1];
 [-0.5, 1.5] keeps a 0.02 atom spacing (on +-10 the whole range would fall within ~5 atoms). Initial
 policy std 0.22 per joint (see sac_go1.py): small, as Go1's clipped reward needs. These are FastSAC's defaults
-(``FastSACConfig``); the recipe lists what differs: the support (and the batch, for a benchmark).
+(``FastSACConfig``); the recipe lists what differs: the support.
 """
 
 from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
-RECIPE = {"v_min": -0.5, "v_max": 1.5,
-          # FastSAC's default batch, kept: bench/learner_update.py --recipe puts its --offpolicy_batch (4096)
-          # under the recipe, so a recipe without batch_size would be measured at 4096
-          "batch_size": 8192}
+RECIPE = {"v_min": -0.5, "v_max": 1.5}
 
 if __name__ == "__main__":
     run_experiment(algo="fastsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,

@@ -18,10 +18,7 @@ update rate, batch and clipping are FlashSAC's defaults (``FlashSACConfig``); th
 from unilab_jax.apps.cli import run_experiment
 from unilab_jax.sizing import SizedFor
 
-RECIPE = {"gamma": 0.97, "init_alpha": 0.001, "normalize_rewards": False, "v_min": -0.5, "v_max": 1.5,
-          # FlashSAC's default batch, kept: bench/learner_update.py --recipe puts its --offpolicy_batch (4096)
-          # under the recipe, so a recipe without batch_size would be measured at 4096
-          "batch_size": 8192}
+RECIPE = {"gamma": 0.97, "init_alpha": 0.001, "normalize_rewards": False, "v_min": -0.5, "v_max": 1.5}
 
 if __name__ == "__main__":
     run_experiment(algo="flashsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,

@@ -28,9 +28,6 @@ LAUNCHERS = {"run_experiment": "unilab_jax.apps.cli", "run_mjx_experiment": "uni
 # the launchers' parameters that are recipes (checked key by key) rather than values with a default
 RECIPE_PARAMS = {"recipe": "algo", "task_recipe": "task", "teacher_recipe": "hora_teacher",
                  "student_recipe": "hora_student"}
-# Entries kept though they equal the default, each for a reader other than the launcher.
-KEPT = {("fastsac_go1", "RECIPE", "batch_size"): "bench/learner_update.py --recipe puts --offpolicy_batch under it",
-        ("flashsac_go1", "RECIPE", "batch_size"): "bench/learner_update.py --recipe puts --offpolicy_batch under it"}
 SCRIPTS = sorted(n for n in os.listdir(EXPERIMENTS) if n.endswith(".py")
                  and any(launcher in open(os.path.join(EXPERIMENTS, n)).read() for launcher in LAUNCHERS))
 
@@ -166,10 +163,8 @@ def test_no_recipe_entry_equals_the_default_it_overrides(calls):
                 without = apply_overrides(defaults, _resolve(script[:-3], name, drop=entry)[0])
                 needed[entry] = needed.get(entry, False) or without != config
     redundant = sorted(f"{module}.py {name}[{key!r}]" for (module, name, key), need in needed.items()
-                       if not need and (module, name, key) not in KEPT)
+                       if not need)
     assert not redundant, f"recipe entries equal to the defaults they override: {redundant}"
-    stale = sorted(entry for entry in KEPT if needed.get(entry, True))  # gone, or no longer a default
-    assert not stale, f"KEPT lists entries that are not (or no longer) defaults: {stale}"
     assert {("fastsac_go1", "RECIPE", "v_min"), ("ppo_allegro_rotate", "TASK_RECIPE", "reset_press")} <= set(needed)
 
 
