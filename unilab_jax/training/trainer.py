@@ -75,7 +75,7 @@ class RunConfig:
     utd_mode: str = "hold"
     utd_window: int = 0  # env steps the workers may run ahead of the ratio (0: four learner calls' worth)
     # Worker CPU affinity: -1 none; K >= 0: workers pinned to the usable CPUs except the first K, which stay free
-    # for the learner process (runtime/pool.py cpu_placement).
+    # for the learner process (runtime/spawn.py cpu_placement).
     pin_cpus: int = -1
     # JAX learner: "1" (one device, the plain path), "N" or "all": data-parallel over the first N local devices
     # (unilab_jax/training/sharding.py; the batch axis must divide evenly).
@@ -249,7 +249,8 @@ class Trainer:
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
         from unilab_jax.checkpoint import Checkpointer
-        from unilab_jax.runtime.pool import WorkerPool, cpu_placement
+        from unilab_jax.runtime.pool import WorkerPool
+        from unilab_jax.runtime.spawn import cpu_placement
         from unilab_jax.runtime.weights import WeightPublisher
         from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
 
