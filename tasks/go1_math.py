@@ -7,7 +7,7 @@ numpy) and its MJX variant (``tasks/mjx_go1.py``, jax) run this one MDP: ``read_
 from ``sensordata``), ``observe`` (actor 48 / critic 123 observations), the 16 Playground reward kernels and
 ``reward_terms``, ``step_math`` (a whole step after the physics, in Playground's order) and
 ``sample_command``. The walking tasks (``tasks/walking.py``) and ``g1_track`` reuse several kernels
-(tracking, base, action-rate, torque, foot-slip costs) and ``scale_terms``.
+(velocity tracking, base motion, action rate, torques, foot slip, joint limits) and ``scale_terms``.
 
 The constants here define the MDP: ``FEET``, the reward terms and their default scales (``REWARD_SCALES``,
 each a config field ``scale_<term>``), the observation sizes and the pose-term weights. The layouts and the
@@ -34,7 +34,7 @@ REWARD_SCALES = {
 REWARD_TERMS = tuple(REWARD_SCALES)
 OBS_DIM = 48
 CRITIC_OBS_DIM = OBS_DIM + 3 + 3 + 3 + 3 + 3 + 12 + 12 + 12 + 4 + 12 + 4 + 3 + 1  # 123
-# Playground's flat-terrain "home" keyframe (scene_mjx_feetonly_flat_terrain.xml).
+# Per-joint weights of the pose term (hip, thigh, calf for each leg).
 POSE_WEIGHT = (1.0, 1.0, 0.1) * 4
 
 

@@ -1,11 +1,12 @@
-"""Task models: Menagerie robots loaded as editable ``mujoco.MjSpec`` s, the MjSpec edits the tasks share, and
+"""Task models: Menagerie robots as editable ``mujoco.MjSpec`` objects, the MjSpec edits the tasks share, and
 the sensor layout of a compiled model.
 
-Every MuJoCo task builds its model from Menagerie's files with MjSpec edits (never a copied XML):
-``load_menagerie_spec`` (``MENAGERIE_ROOT`` for offline copies), ``set_solver`` (timestep, integrator,
-Newton iterations, pyramidal cone), ``strip_visuals`` (meshes, textures and materials, which have no effect
-on physics and would make per-env model copies large) and ``feet_only_contacts``. ``sensor_index`` maps
-sensor names to their slice of ``sensordata``, which MuJoCo and MJX lay out alike.
+The Menagerie tasks (Go1, Go2, G1, Allegro) build their models from Menagerie's files with MjSpec edits
+(never a copied XML): ``load_menagerie_spec`` (``MENAGERIE_ROOT`` for offline copies), ``set_solver``
+(timestep, integrator, Newton iterations, pyramidal cone), ``strip_visuals`` (meshes, textures and
+materials, which have no effect on physics and would make per-env model copies large) and, for the legged
+robots, ``feet_only_contacts``. ``sensor_index`` maps sensor names to their slice of ``sensordata``, which
+MuJoCo and MJX lay out alike.
 """
 
 from __future__ import annotations
