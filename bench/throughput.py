@@ -62,7 +62,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--warmup", type=float, default=3.0, help="untimed seconds before each pool window")
     ap.add_argument("--publish_every", type=float, default=0.5, help="seconds between dummy weight publishes")
     ap.add_argument("--pin_cpus", type=int, default=-1, help="pool phase: -1 no worker affinity; K >= 0: workers "
-                    "pinned to their shares of the usable cores except the first K (runtime/pool.py cpu_placement)")
+                    "pinned to their shares of the usable cores except the first K (runtime/spawn.py cpu_placement)")
     ap.add_argument("--skip_ceiling", action="store_true")
     ap.add_argument("--skip_task", action="store_true")
     ap.add_argument("--skip_pool", action="store_true")
@@ -214,7 +214,7 @@ def pool_throughput(args, overrides: dict) -> dict:
 
     import tasks
     from unilab_jax.runtime import WorkerPool
-    from unilab_jax.runtime.pool import cpu_placement
+    from unilab_jax.runtime.spawn import cpu_placement
 
     probe = tasks.make(args.task, 1, 0, overrides)
     spec = probe.spec

@@ -91,11 +91,12 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "mjx_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
                     "eval_every": 2_000_000, "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True},
 }
-SOURCES = ("tasks/go1_joystick.py", "tasks/mjx_go1.py", "tasks/walking.py", "tasks/go2_joystick.py", "tasks/g1_walk.py",
+SOURCES = ("tasks/go1_joystick.py", "tasks/go1_math.py", "tasks/model_edits.py", "tasks/floating_base.py",
+           "tasks/mjx_go1.py", "tasks/walking.py", "tasks/go2_joystick.py", "tasks/g1_walk.py",
            "tasks/physics.py", "unilab_jax/training/trainer.py", "unilab_jax/metrics.py",
            "unilab_jax/training/mjx.py", "unilab_jax/algos/ppo/ppo.py", "unilab_jax/algos/ppo/learner_jax.py",
            "unilab_jax/algos/offpolicy/fastsac.py", "unilab_jax/algos/offpolicy/learner_jax.py",
-           "unilab_jax/runtime/pool.py", "unilab_jax/runtime/worker.py")
+           "unilab_jax/runtime/pool.py", "unilab_jax/runtime/spawn.py", "unilab_jax/runtime/worker.py")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

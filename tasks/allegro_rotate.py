@@ -79,7 +79,8 @@ import mujoco
 import numpy as np
 
 from tasks import base
-from tasks.go1_joystick import finish_step, load_menagerie_spec, quat_mul, sensor_index
+from tasks.floating_base import quat_mul
+from tasks.model_edits import load_menagerie_spec, sensor_index, set_solver, strip_visuals
 from tasks.physics import BatchedSim
 from unilab_jax import xp as shim
 
@@ -176,8 +177,6 @@ def check_config(config: AllegroRotateConfig) -> int:
 # --------------------------------------------------------------------------------------------------
 def build_spec(config: AllegroRotateConfig) -> mujoco.MjSpec:
     """The palm-up hand with one object body (a geom per shape of ``config.shapes``), from Menagerie's scene."""
-    from tasks.go1_joystick import set_solver, strip_visuals
-
     spec = load_menagerie_spec("wonik_allegro", "scene_right")
     full = spec.compile()
     # Fix every body's inertia from the full model before the visual meshes (which carry the mass) go.
@@ -406,7 +405,7 @@ def yaw_quat(yaw):
 # --------------------------------------------------------------------------------------------------
 class RotationTracker:
     """The evaluation metric over each env's first episode while a caller steps the task (``step`` /
-    ``result`` like ``walking.WalkingTracker``): ``rotation_rate`` (rad/s, mean object yaw rate over the
+    ``result`` like ``walking_metric.WalkingTracker``): ``rotation_rate`` (rad/s, mean object yaw rate over the
     episode's steps), ``time_to_fall`` (fraction of the episode before a fall, 1 without one),
     ``rotate_reward`` (mean per-step rotation term). ``stepper``: what ``step`` steps (the task, or a
     ``<task>_hist`` variant wrapping it); the metric's inputs are read from ``task``."""
@@ -579,8 +578,8 @@ class AllegroRotate(base.Task):
         self.info["obj_pos"] = pos.copy()
         self.info["obj_quat"] = quat.copy()
         self.steps += 1
-        out, n_unstable = finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
-                                      self.steps >= c.episode_length, self._reset_and_observe)
+        out, n_unstable = base.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
+                                           self.steps >= c.episode_length, self._reset_and_observe)
         self.unstable_count += n_unstable
         return out
 

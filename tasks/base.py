@@ -1,4 +1,4 @@
-"""Task API and the open task registry.
+"""Task API, the end of a step several tasks share (``finish_step``), and the open task registry.
 
 A task owns a batch of ``num_envs`` MuJoCo environments on the CPU and steps them together::
 
@@ -12,9 +12,10 @@ A task owns a batch of ``num_envs`` MuJoCo environments on the CPU and steps the
     out.reward_terms {name: [M]}                    # each term's scaled contribution this step
     task.images()                                   # uint8 [M, H, W, C] of obs, tasks with spec.image_shape
 
-Environments that end (terminated or truncated) are reset inside ``step``; nothing per env
-happens in Python beyond the MuJoCo step calls. Observation/reward math is written against the
-array-API shim so the MJX variant can reuse it.
+Environments that end (terminated or truncated) are reset inside ``step``; nothing per env happens in
+Python beyond the MuJoCo step calls. ``finish_step`` is that end of a step (unstable envs masked and
+truncated, end flags, auto-reset) for the Go1, walking, G1-tracking and Allegro tasks. Observation/reward
+math is written against the array-API shim so the MJX variant can reuse it.
 """
 
 from __future__ import annotations
@@ -145,6 +146,40 @@ def with_reward_scales(scales: Mapping[str, float]) -> Callable[[type], type]:
 def reward_scales(config: Any, terms: Sequence[str]) -> dict[str, float]:
     """``{term: config.scale_<term>}`` for ``terms``."""
     return {name: float(getattr(config, f"scale_{name}")) for name in terms}
+
+
+def finish_step(next_obs, next_cobs, reward, scaled, done, unstable, at_limit, reset_and_observe):
+    """The end of a task step shared by the Go1, walking, G1-tracking and Allegro tasks: instability masking,
+    end flags, auto-reset.
+
+    ``unstable [M]`` (MuJoCo divergence) is widened by any non-finite observation or reward; those envs are
+    truncated with zeroed outputs. ``done [M]`` terminates the others; ``at_limit [M]`` truncates them.
+    ``reset_and_observe(idx)`` resets envs ``idx`` and returns the whole batch's (obs, critic_obs), of
+    which rows ``idx`` replace the successors in ``StepOut.obs``. Returns (StepOut, number of unstable envs).
+    """
+    unstable = unstable | ~(
+        np.isfinite(next_obs).all(axis=1) & np.isfinite(next_cobs).all(axis=1) & np.isfinite(reward)
+    )
+    n_unstable = int(unstable.sum())
+    if n_unstable:
+        next_obs[unstable] = 0.0
+        next_cobs[unstable] = 0.0
+        reward = np.where(unstable, 0.0, reward)
+        scaled = {k: np.where(unstable, 0.0, v) for k, v in scaled.items()}
+    term = done & ~unstable
+    trunc = (at_limit | unstable) & ~term
+    next_obs = next_obs.astype(np.float32)
+    next_cobs = next_cobs.astype(np.float32)
+    obs, cobs = next_obs, next_cobs
+    ended = np.flatnonzero(term | trunc)
+    if ended.size:
+        o2, c2 = reset_and_observe(ended)
+        obs, cobs = next_obs.copy(), next_cobs.copy()
+        obs[ended] = o2[ended]
+        cobs[ended] = c2[ended]
+    out = StepOut(obs, cobs, next_obs, next_cobs, reward.astype(np.float32), term, trunc,
+                  {k: v.astype(np.float32) for k, v in scaled.items()})
+    return out, n_unstable
 
 
 class _ByName:

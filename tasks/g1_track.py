@@ -55,7 +55,8 @@ from collections.abc import Mapping
 import mujoco
 import numpy as np
 
-from tasks import base, g1_motions, g1_walk, go1_joystick, walking
+from tasks import base, g1_motions, g1_walk, go1_math, walking
+from tasks.floating_base import gravity_from_quat
 from unilab_jax import xp as shim
 
 REWARD_SCALES = {"anchor_pos": 0.5, "anchor_ori": 0.5, "body_pos": 1.0, "body_ori": 1.0, "body_lin_vel": 1.0,
@@ -202,8 +203,8 @@ def tracking_terms(*, anchor, body_pos, body_quat, body_lin, body_ang, ref_ancho
         "body_ori": k("body_ori", xp.mean(xp.square(quat_angle(body_quat, target_quat)), axis=-1)),
         "body_lin_vel": k("body_lin_vel", xp.mean(sq(body_lin - target_lin), axis=-1)),
         "body_ang_vel": k("body_ang_vel", xp.mean(sq(body_ang - target_ang), axis=-1)),
-        "action_rate": go1_joystick.cost_action_rate(action, last_act),
-        "joint_limit": go1_joystick.cost_dof_pos_limits(joint_pos, soft_lower, soft_upper),
+        "action_rate": go1_math.cost_action_rate(action, last_act),
+        "joint_limit": go1_math.cost_dof_pos_limits(joint_pos, soft_lower, soft_upper),
     }
 
 
@@ -212,8 +213,8 @@ def tracking_terminated(anchor_pos, anchor_quat, ref_anchor_pos, ref_anchor_quat
     """[M] bool: anchor height error, anchor projected-gravity z error or any end-effector height error
     (``ee_z`` / ``ref_ee_z`` [M, E]) beyond its threshold."""
     xp = shim.namespace(anchor_pos)
-    gz = go1_joystick.gravity_from_quat(anchor_quat)[:, 2]
-    ref_gz = go1_joystick.gravity_from_quat(ref_anchor_quat)[:, 2]
+    gz = gravity_from_quat(anchor_quat)[:, 2]
+    ref_gz = gravity_from_quat(ref_anchor_quat)[:, 2]
     return ((xp.abs(anchor_pos[:, 2] - ref_anchor_pos[:, 2]) > max_height_error)
             | (xp.abs(gz - ref_gz) > max_gravity_error)
             | xp.any(xp.abs(ee_z - ref_ee_z) > max_ee_error, axis=-1))
@@ -440,7 +441,7 @@ class G1Track(g1_walk.G1WalkFlat):
         done = tracking_terminated(apos, aquat, rpos, rquat, s["body_pos"][:, self._ee, 2],
                                    s["ref_pos"][:, self._ee, 2], c.max_anchor_height_error,
                                    c.max_anchor_gravity_error, c.max_end_effector_height_error)
-        scaled = go1_joystick.scale_terms(terms, self.scales, self.dt)
+        scaled = go1_math.scale_terms(terms, self.scales, self.dt)
         reward = np.sum(np.stack(list(scaled.values())), axis=0)
         self.body_pos_error = np.linalg.norm(s["body_pos"] - s["ref_pos"], axis=-1).mean(axis=1)
         # Failure statistics of the start bins.
@@ -459,8 +460,8 @@ class G1Track(g1_walk.G1WalkFlat):
         self.last_act = a
         next_obs, next_cobs = self._observe(s)
         self._push(done)
-        out, n_unstable = go1_joystick.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
-                                                   self.steps >= c.episode_length, self._reset_and_observe)
+        out, n_unstable = base.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
+                                           self.steps >= c.episode_length, self._reset_and_observe)
         self.unstable_count += n_unstable
         return out
 
@@ -473,7 +474,7 @@ class G1Track(g1_walk.G1WalkFlat):
 
 class TrackingEval:
     """The tracking metric over each env's first clip while a caller steps the task (``step`` / ``result``
-    like ``walking.WalkingTracker``): ``clip_completion``, the fraction of envs whose first clip reached its
+    like ``walking_metric.WalkingTracker``): ``clip_completion``, the fraction of envs whose first clip reached its
     last frame without termination, and ``body_pos_error``, the mean per-body position error (m, world
     frame) over the steps of those first clips."""
 

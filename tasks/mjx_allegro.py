@@ -27,8 +27,8 @@ import numpy as np
 
 from tasks import allegro_rotate as ar
 from tasks import base
-from tasks.go1_joystick import sensor_index
 from tasks.mjx_go1 import MjxStepOut, finish_transition, forward, physics_step, reset_in_batches, restart_episodes
+from tasks.model_edits import sensor_index
 
 with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints a notice when the optional warp is absent
     from mujoco import mjx

@@ -2,7 +2,7 @@
 
 The GPU-resident baseline (MuJoCo Playground / IsaacLab style) against which the heterogeneous runtime is
 measured (``unilab_jax/training/mjx.py``, ``bench/time_to_target.py``). Everything that defines the task comes
-from ``tasks/go1_joystick.py``:
+from ``tasks/go1_joystick.py`` (configuration, model) and its math module ``tasks/go1_math.py``:
 
 * Model: the same ``build_spec(config)`` MjSpec model (pyramidal cones, feet-only contacts, sensors),
   ``mjx.put_model(model, impl="jax")``; float32 throughout (the CPU task runs MuJoCo in float64 and
@@ -13,11 +13,11 @@ from ``tasks/go1_joystick.py``:
   environments; each env has its own model fields (below); full float32 matrix products (``PRECISION``).
 * Sensors: MJX computes every sensor type the task declares (gyro, velocimeter, accelerometer,
   framezaxis, framelinvel/angvel, framequat, framepos, contact "found", actuatorfrc), so observations
-  and rewards read ``mjx.Data.sensordata`` through the CPU task's own ``read_sensors``: foot contact is
+  and rewards read ``mjx.Data.sensordata`` through the CPU task's own ``go1_math.read_sensors``: foot contact is
   the contact sensor (a foot-floor contact with distance < 0), exactly as on the CPU.
-* Observation, reward, termination and the per-step bookkeeping: ``go1_joystick.step_math`` on jax
-  arrays (the shim picks the jax backend); reset poses ``go1_joystick.place_base``; command resampling
-  ``go1_joystick.sample_command``. The random draws have the CPU task's distributions, from a jax key.
+* Observation, reward, termination and the per-step bookkeeping: ``go1_math.step_math`` on jax
+  arrays (the shim picks the jax backend); reset poses ``floating_base.place_base``; command resampling
+  ``go1_math.sample_command``. The random draws have the CPU task's distributions, from a jax key.
 * Domain randomisation: the CPU task's parameters and distributions (``sample_dr`` returns a dict with
   the same keys as ``Go1JoystickFlat.dr``; ``reset(key, dr=task.dr)`` reuses a CPU task's draw), turned
   into per-env model fields (floor friction, dof frictionloss / armature, torso COM, body masses,
@@ -49,6 +49,9 @@ import numpy as np
 
 from tasks import base
 from tasks import go1_joystick as gj
+from tasks import go1_math as gm
+from tasks.floating_base import place_base
+from tasks.model_edits import sensor_index
 
 with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints a notice when the optional warp is absent
     from mujoco import mjx
@@ -68,7 +71,7 @@ class Go1MjxState(NamedTuple):
     data: Any  # mjx.Data
     model_fields: dict  # per-env model fields (``DR_FIELDS``)
     pose_offset: jax.Array  # [M, nu] added to the motor targets
-    info: dict  # command, last_act, feet_air_time, last_contact, swing_peak (``go1_joystick.step_math``)
+    info: dict  # command, last_act, feet_air_time, last_contact, swing_peak (``go1_math.step_math``)
     steps_until_next_cmd: jax.Array  # [M] int32
     steps: jax.Array  # [M] int32 control steps in the current episode
     obs: jax.Array  # [M, obs_dim] the observation the policy acts on (after auto-reset)
@@ -200,24 +203,24 @@ class Go1JoystickMjx:
         match_euler_damping(m)
         self.mjx_model = mjx.put_model(m, impl="jax")
         self._template = mjx.make_data(self.mjx_model)
-        self.sensor_index = gj.sensor_index(m)
+        self.sensor_index = sensor_index(m)
         self.floor_id, self.torso_id = m.geom("floor").id, m.body("trunk").id
         init_qpos = np.array(m.key("home").qpos)
         lowers, uppers = m.jnt_range[1:].T
         f32 = lambda x: jnp.asarray(np.asarray(x, dtype=np.float32))
         self.init_qpos = f32(init_qpos)
-        self.consts = {"default_pose": f32(init_qpos[7:]), "pose_weight": f32(gj.POSE_WEIGHT),
+        self.consts = {"default_pose": f32(init_qpos[7:]), "pose_weight": f32(gm.POSE_WEIGHT),
                        "soft_lower": f32(lowers * c.soft_joint_pos_limit_factor),
                        "soft_upper": f32(uppers * c.soft_joint_pos_limit_factor)}
-        self.noise_scale = f32(gj.noise_scales(c))
+        self.noise_scale = f32(gm.noise_scales(c))
         self.scales = gj.reward_scales(c)
         self._cmd_a, self._cmd_b = f32(c.command_a), f32(c.command_b)
         nb = m.nbody - 1
         self.dr_dims = {"armature_scale": 12, "com_offset": 3, "default_pose_offset": 12, "floor_friction": 1,
                         "frictionloss_scale": 12, "mass_scale": nb, "motor_strength": m.nu, "torso_mass_delta": 1}
         self.spec = base.TaskSpec(
-            name="go1_joystick_flat", obs_dim=gj.OBS_DIM, critic_obs_dim=gj.CRITIC_OBS_DIM, action_dim=m.nu,
-            episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=gj.REWARD_TERMS,
+            name="go1_joystick_flat", obs_dim=gm.OBS_DIM, critic_obs_dim=gm.CRITIC_OBS_DIM, action_dim=m.nu,
+            episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=gm.REWARD_TERMS,
             privileged_dim=sum(self.dr_dims.values()),
         )
 
@@ -274,7 +277,7 @@ class Go1JoystickMjx:
 
     # ---- task ---------------------------------------------------------------------------------
     def _sensors(self, data: Any) -> dict:
-        return gj.read_sensors(data.sensordata, self.sensor_index, self.model.nu)
+        return gm.read_sensors(data.sensordata, self.sensor_index, self.model.nu)
 
     def base_velocity(self, state: Go1MjxState) -> jax.Array:
         """[M, 3] measured body-frame (vx, vy) and yaw rate, as the CPU task's ``base_velocity`` (walking metric)."""
@@ -294,7 +297,7 @@ class Go1JoystickMjx:
         c, n = self.config, pose_offset.shape[0]
         ks = jax.random.split(key, 5)
         u = lambda k, shape, lo, hi: jax.random.uniform(k, shape, jnp.float32, lo, hi)
-        qpos, qvel = gj.place_base(self.init_qpos, u(ks[0], (n, 2), -c.reset_xy, c.reset_xy),
+        qpos, qvel = place_base(self.init_qpos, u(ks[0], (n, 2), -c.reset_xy, c.reset_xy),
                                    u(ks[1], (n,), -c.reset_yaw, c.reset_yaw),
                                    u(ks[2], (n, 6), -c.reset_base_vel, c.reset_base_vel), self.model.nv)
         data = self.forward(fields, qpos, qvel, self.consts["default_pose"] + pose_offset)
@@ -305,7 +308,7 @@ class Go1JoystickMjx:
         return data, info, self._exp_steps(ks[4], n)
 
     def _observe(self, data: Any, info: dict, key: jax.Array) -> tuple[jax.Array, jax.Array]:
-        return gj.observe(self._sensors(data), data.qpos[:, 7:], data.qvel[:, 6:], info["last_act"],
+        return gm.observe(self._sensors(data), data.qpos[:, 7:], data.qvel[:, 6:], info["last_act"],
                           info["command"], info["last_contact"], info["feet_air_time"], self.consts["default_pose"],
                           self._noise(key, data.qpos.shape[0]))
 
@@ -361,14 +364,14 @@ class Go1JoystickMjx:
         episode sums include this step). The parity tests call it on data from ``forward``."""
         c, n = self.config, self.num_envs
         key, k_noise, k_cmd = jax.random.split(state.key, 3)
-        next_obs, next_cobs, done, scaled, reward, updated = gj.step_math(
+        next_obs, next_cobs, done, scaled, reward, updated = gm.step_math(
             self._sensors(data), data.qpos[:, 7:], data.qvel[:, 6:], a, state.info, self._noise(k_noise, n),
             self.consts, c, self.scales, self.dt)
         # Command resampling (the CPU task's rule and draws).
         kc = jax.random.split(k_cmd, 4)
         until = state.steps_until_next_cmd - 1
         due = until <= 0
-        new_cmd = gj.sample_command(
+        new_cmd = gm.sample_command(
             state.info["command"], jax.random.uniform(kc[0], (n, 3), jnp.float32, -self._cmd_a, self._cmd_a),
             jax.random.uniform(kc[1], (n, 3)) < self._cmd_b, jax.random.uniform(kc[2], (n, 3)) < 0.5)
         info = {**updated, "command": jnp.where(due[:, None], new_cmd, state.info["command"])}

@@ -22,7 +22,7 @@ of the CPU task (the *template*) that supplies everything that defines the task:
   own float64 phases per episode step (``walking.gait_phase(steps * dt)``; stance from the float64 phase):
   float32 phases disagree with float64 about stance exactly at the phase boundaries (G1: 20 of 1001
   steps); steps past ``episode_length`` (never reached: that step truncates) read the last row.
-* Resets: the CPU task's distribution (``go1_joystick.place_base`` of U(+-reset_xy), U(+-reset_yaw),
+* Resets: the CPU task's distribution (``floating_base.place_base`` of U(+-reset_xy), U(+-reset_yaw),
   U(+-reset_base_vel) draws, the home pose at its standing height, servo targets at the default pose, a
   command U(command_low, command_high) per episode, last action 0, step 0) from a jax key; auto-reset of
   ended envs with ``mjx_go1.reset_in_batches``.
@@ -53,8 +53,8 @@ import mujoco
 import numpy as np
 
 from tasks import g1_walk, go2_joystick, walking
-from tasks import go1_joystick as gj
 from tasks import mjx_go1 as mg
+from tasks.floating_base import place_base
 from tasks.mjx_go1 import MjxStepOut, mjx
 
 __all__ = ["DR", "WalkingMjxState", "MjxStepOut", "WalkingMjx", "make"]
@@ -277,7 +277,7 @@ class WalkingMjx:
         c = self.config
         n = jax.tree_util.tree_leaves(fields)[0].shape[0]
         ks = jax.random.split(key, 4)
-        qpos, qvel = gj.place_base(self.init_qpos, _uniform(ks[0], (n, 2), -c.reset_xy, c.reset_xy),
+        qpos, qvel = place_base(self.init_qpos, _uniform(ks[0], (n, 2), -c.reset_xy, c.reset_xy),
                                    _uniform(ks[1], (n,), -c.reset_yaw, c.reset_yaw),
                                    _uniform(ks[2], (n, 6), -c.reset_base_vel, c.reset_base_vel), self.model.nv)
         data = self.forward(fields, qpos, qvel, _tile(self.default_ctrl, n))

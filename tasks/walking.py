@@ -1,6 +1,4 @@
-"""Shared machinery of the gait-phase walking tasks (Go2, G1) and a walking metric for every locomotion task.
-
-Two parts:
+"""Shared machinery of the gait-phase walking tasks (Go2, G1).
 
 * ``WalkingTask``: the batched CPU task that ``go2_joystick_flat`` and ``g1_walk_flat`` specialise. It owns
   what the two have in common: position servos with a per-joint PD (``position_servos``: Kp on the
@@ -9,15 +7,15 @@ Two parts:
   the observation layout (gyro, projected gravity, joint pos - default, joint vel, last action,
   command, gait phase), one velocity command per episode, tilt/height termination, base-velocity
   pushes, per-env domain-randomised models with their parameters in ``extrinsics``, and the
-  instability handling shared with Go1 (``go1_joystick.finish_step``). Subclasses build the model and
+  instability handling shared with Go1 (``base.finish_step``). Subclasses build the model and
   define the reward terms and the domain randomisation.
-* ``walking_metric``: runs a deterministic policy on a fresh task and reports velocity-tracking error,
-  yaw-rate error and fall rate -- numbers that do not depend on any task's reward scaling. It needs
-  the task to expose ``task.command [M, 3]`` (vx, vy, yaw rate asked for) and ``task.base_velocity()
-  [M, 3]`` (the measured body-frame vx, vy and yaw rate); Go1, Go2 and G1 do.
+* The model edits (``robot_spec``, ``position_servos``, ``add_walking_sensors``, ``standing_height``) and
+  the per-step math: module-level pure functions on batched arrays written against the shim (the gait
+  clock, reward kernels -- several of them Go1's, from ``tasks/go1_math.py`` --, observation,
+  ``read_sensors``, ``step_math``), so the MJX variant (``tasks/mjx_walking.py``) runs them on jax arrays.
 
-The per-step math is module-level pure functions on batched arrays written against the shim, so an MJX
-variant can reuse it with jax arrays.
+Like Go1, the walking tasks expose ``command`` and ``base_velocity()`` for the walking metric
+(``tasks/walking_metric.py``).
 """
 
 from __future__ import annotations
@@ -31,8 +29,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from tasks import base
-from tasks import go1_joystick as go1
+from tasks import base, go1_math
+from tasks.floating_base import gravity_from_quat, random_base_states
+from tasks.model_edits import feet_only_contacts, load_menagerie_spec, set_solver, strip_visuals
 from tasks.physics import BatchedSim
 from unilab_jax import xp as shim
 
@@ -88,11 +87,11 @@ def robot_spec(robot: str, config: Any, find_feet: Callable[[mujoco.MjSpec], lis
     """A Menagerie robot's scene with the edits every walking task makes: the config's solver, no visual-only
     assets, and contacts between the feet (``find_feet(spec)``, once the visuals are gone) and the floor
     only, with condim 3 on the feet. Returns (spec, feet)."""
-    spec = go1.load_menagerie_spec(robot)
-    go1.set_solver(spec, config)
-    go1.strip_visuals(spec)
+    spec = load_menagerie_spec(robot)
+    set_solver(spec, config)
+    strip_visuals(spec)
     feet = find_feet(spec)
-    go1.feet_only_contacts(spec, feet)
+    feet_only_contacts(spec, feet)
     for g in feet:
         g.condim = 3
     return spec, feet
@@ -212,17 +211,17 @@ def reward_terms(names: Sequence[str], *, command, local_linvel, gyro, base_z, j
     terms whose inputs it passes). ``pose_weight`` None: every joint weighs 1."""
     xp = shim.namespace(joint_pos)
     terms = {
-        "tracking_lin_vel": lambda: go1.reward_tracking_lin_vel(command, local_linvel, tracking_sigma),
-        "tracking_ang_vel": lambda: go1.reward_tracking_ang_vel(command, gyro, tracking_sigma),
-        "lin_vel_z": lambda: go1.cost_lin_vel_z(local_linvel),
-        "ang_vel_xy": lambda: go1.cost_ang_vel_xy(gyro),
-        "orientation": lambda: go1.cost_orientation(gravity),
+        "tracking_lin_vel": lambda: go1_math.reward_tracking_lin_vel(command, local_linvel, tracking_sigma),
+        "tracking_ang_vel": lambda: go1_math.reward_tracking_ang_vel(command, gyro, tracking_sigma),
+        "lin_vel_z": lambda: go1_math.cost_lin_vel_z(local_linvel),
+        "ang_vel_xy": lambda: go1_math.cost_ang_vel_xy(gyro),
+        "orientation": lambda: go1_math.cost_orientation(gravity),
         "base_height": lambda: cost_base_height(base_z, base_height_target),
-        "action_rate": lambda: go1.cost_action_rate(action, last_act),
-        "torques": lambda: go1.cost_torques(actuator_force),
+        "action_rate": lambda: go1_math.cost_action_rate(action, last_act),
+        "torques": lambda: go1_math.cost_torques(actuator_force),
         "feet_contact_phase": lambda: reward_contact_phase(contact, stance),
         "feet_swing_height": lambda: reward_swing_height(feet_h, stance, swing_height_target, swing_height_sigma),
-        "feet_slip": lambda: go1.cost_feet_slip(command, feet_vel, contact),
+        "feet_slip": lambda: go1_math.cost_feet_slip(command, feet_vel, contact),
         "pose": lambda: cost_pose_l1(joint_pos, default_pose,
                                      xp.ones_like(default_pose) if pose_weight is None else pose_weight),
         "termination": lambda: xp.astype(done, joint_pos.dtype),
@@ -267,7 +266,7 @@ def read_sensors(sensordata, qpos, qvel, layout: Mapping[str, Any]) -> dict:
 
     feet = layout["feet"]
     s = {k: get(k) for k in ("gyro", "local_linvel", "orientation")}
-    s["gravity"] = go1.gravity_from_quat(s["orientation"])
+    s["gravity"] = gravity_from_quat(s["orientation"])
     s["feet_h"] = xp.stack([get(f"{f}_pos")[:, 2] for f in feet], axis=1) - layout["sole_offset"]
     s["feet_vel"] = xp.stack([get(f"{f}_vel") for f in feet], axis=1)
     s["contact"] = xp.stack([get(f"{f}_contact")[:, 0] for f in feet], axis=1) > 0
@@ -302,7 +301,7 @@ def step_math(s, action, noise, default_pose, phase_groups, config: Any, scales:
     the observation shows ``action`` as the last action.
     """
     done = terminated(s["gravity"], s["base_z"], config.max_tilt_deg, config.min_base_height)
-    scaled = go1.scale_terms(reward_terms(s, action, done), scales, dt)
+    scaled = go1_math.scale_terms(reward_terms(s, action, done), scales, dt)
     xp = shim.namespace(s["gyro"])
     reward = xp.sum(xp.stack(list(scaled.values())), axis=0)
     next_obs, next_cobs = observe(s, action, noise, default_pose, phase_groups, critic_extra)
@@ -466,8 +465,8 @@ class WalkingTask(base.Task):
 
     def _reset_envs(self, idx: np.ndarray) -> None:
         c, r, n = self.config, self._rng, idx.size
-        qpos, qvel = go1.random_base_states(self.init_qpos, self.model.nv, n, r, c.reset_xy, c.reset_yaw,
-                                            c.reset_base_vel)
+        qpos, qvel = random_base_states(self.init_qpos, self.model.nv, n, r, c.reset_xy, c.reset_yaw,
+                                        c.reset_base_vel)
         self.sim.set_state(idx, qpos, qvel, ctrl=np.tile(self.default_ctrl, (n, 1)))
         self.command[idx] = r.uniform(self._cmd_low, self._cmd_high, size=(n, 3))
         self.last_act[idx] = 0.0
@@ -510,8 +509,8 @@ class WalkingTask(base.Task):
             self.reward_terms, self.critic_extra)
         self.last_act = a  # the observation shows the action just applied
         self._push(done)
-        out, n_unstable = go1.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
-                                          self.steps >= c.episode_length, self._reset_and_observe)
+        out, n_unstable = base.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
+                                           self.steps >= c.episode_length, self._reset_and_observe)
         self.unstable_count += n_unstable
         return out
 
@@ -521,99 +520,3 @@ class WalkingTask(base.Task):
 
     def close(self) -> None:
         self.sim.close()
-
-
-# --------------------------------------------------------------------------------------------------
-# Walking metric
-# --------------------------------------------------------------------------------------------------
-def walking_metric(task_name: str, weights: Any, act_fn: Callable[[Any, np.ndarray], np.ndarray],
-                   num_envs: int = 16, steps: int | None = None, seconds: float | None = None, seed: int = 0,
-                   overrides: Mapping[str, Any] | None = None) -> dict[str, float]:
-    """Velocity tracking of a deterministic policy, independent of any reward scaling.
-
-    Runs ``act_fn(weights, obs) -> action [M, action_dim]`` on a fresh ``task_name`` instance with
-    ``num_envs`` envs; each env's *first* episode is evaluated for at most ``steps`` control steps
-    (``seconds / ctrl_dt`` if given instead; default one episode length). The task must expose
-    ``command [M, 3]`` and ``base_velocity() [M, 3]`` (body-frame vx, vy, yaw rate). Returns:
-
-    * ``tracking_error``: mean over evaluated steps of |v_xy_cmd - v_xy| (m/s, body frame);
-    * ``yaw_rate_error``: mean |wz_cmd - wz| (rad/s);
-    * ``command_speed`` / ``command_yaw_rate``: mean |v_xy_cmd| and |wz_cmd| over the same steps (the
-      errors of a policy that stands still);
-    * ``fall_rate``: fraction of the ``num_envs`` episodes that terminated (not truncated) in the window;
-    * ``evaluated_steps`` and ``episodes``.
-
-    A step counts when its env is still in its first episode and did not end on that step (an ended env's
-    state is already the next episode's reset); the command compared is the one in force during the step.
-    """
-    import tasks
-
-    task = tasks.make(task_name, num_envs, seed=seed, overrides=overrides)
-    try:
-        if steps is None:
-            steps = round(seconds / task.spec.ctrl_dt) if seconds is not None else task.spec.episode_length
-        if steps <= 0:
-            raise ValueError(f"steps must be positive, got {steps}")
-        tracker = WalkingTracker(task)
-        obs, _ = task.reset()
-        for _ in range(steps):
-            out = tracker.step(np.asarray(act_fn(weights, obs), dtype=np.float32))
-            obs = out.obs
-            if tracker.done:
-                break
-    finally:
-        task.close()
-    return tracker.result()
-
-
-class WalkingTracker:
-    """Accumulates ``walking_metric``'s numbers over each env's first episode while a caller steps the task
-    (the trainer's periodic evaluation uses it on the episodes it already runs).
-
-    ``step(action)`` steps the task and returns its ``StepOut``; ``result()`` gives the metric dictionary, of
-    which the trainer logs the ``LOGGED`` entries.
-    """
-
-    LOGGED = ("tracking_error", "yaw_rate_error", "fall_rate")
-
-    def __init__(self, task: Any):
-        if not is_locomotion(task):
-            raise TypeError(f"task {task.spec.name!r} exposes no command / base_velocity(): not a locomotion task")
-        self._task = task
-        m = task.num_envs
-        self.active = np.ones(m, dtype=bool)
-        self._fell = np.zeros(m, dtype=bool)
-        self._sums = np.zeros(4)  # tracking error, yaw error, command speed, command yaw rate
-        self._count = 0
-
-    @property
-    def done(self) -> bool:
-        return not self.active.any()
-
-    def step(self, action: np.ndarray) -> base.StepOut:
-        cmd = np.array(self._task.command, dtype=np.float64, copy=True)
-        out = self._task.step(action)
-        ended = out.terminated | out.truncated
-        self._fell |= self.active & out.terminated
-        ok = self.active & ~ended
-        if ok.any():
-            vel = self._task.base_velocity()[ok]
-            c = cmd[ok]
-            self._sums += [np.linalg.norm(c[:, :2] - vel[:, :2], axis=1).sum(), np.abs(c[:, 2] - vel[:, 2]).sum(),
-                           np.linalg.norm(c[:, :2], axis=1).sum(), np.abs(c[:, 2]).sum()]
-            self._count += int(ok.sum())
-        self.active &= ~ended
-        return out
-
-    def result(self) -> dict[str, float]:
-        mean = self._sums / self._count if self._count else np.full(4, np.nan)
-        return {
-            "tracking_error": float(mean[0]), "yaw_rate_error": float(mean[1]),
-            "command_speed": float(mean[2]), "command_yaw_rate": float(mean[3]),
-            "fall_rate": float(self._fell.mean()), "evaluated_steps": self._count, "episodes": len(self._fell),
-        }
-
-
-def is_locomotion(task: Any) -> bool:
-    """Whether ``task`` exposes what the walking metric reads (``command`` and ``base_velocity()``)."""
-    return hasattr(task, "command") and callable(getattr(task, "base_velocity", None))

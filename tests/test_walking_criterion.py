@@ -1,6 +1,6 @@
 """The walking criterion (``metrics.WALKING``: planar tracking <= 0.25 m/s, yaw-rate error <= 0.3 rad/s,
 falls <= 2%) on hand-made episodes: a scripted task whose commands, measured velocities and falls are set
-by hand, measured by ``tasks.walking.walking_metric`` and judged by the criterion."""
+by hand, measured by ``tasks.walking_metric.walking_metric`` and judged by the criterion."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tasks import base
-from tasks.walking import walking_metric
+from tasks.walking_metric import walking_metric
 from unilab_jax.metrics import WALKING, WalkingCriterion
 
 M = 50  # episodes: one fall is 2% (allowed), two are 4%

@@ -14,7 +14,7 @@ import time
 
 @dataclasses.dataclass(frozen=True)
 class WalkingCriterion:
-    """When a locomotion policy walks: judged on ``tasks.walking.walking_metric``'s numbers (deterministic
+    """When a locomotion policy walks: judged on ``tasks.walking_metric.walking_metric``'s numbers (deterministic
     policy, random commands), independent of any task's reward scaling.
 
     A policy that stands still has tracking error = the mean commanded speed (~0.5 m/s on Go1/Go2/G1) and

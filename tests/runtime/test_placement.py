@@ -9,7 +9,7 @@ import pytest
 import toy_algo  # noqa: F401  (the workers import it by name)
 
 from unilab_jax.runtime import WorkerPool
-from unilab_jax.runtime.pool import cpu_placement
+from unilab_jax.runtime.spawn import cpu_placement
 
 pytestmark = pytest.mark.timeout(120)
 

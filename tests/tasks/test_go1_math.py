@@ -7,7 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from tasks import go1_joystick as g
+from tasks import go1_joystick
+from tasks import go1_math as g
+from tasks.floating_base import gravity_from_quat, quat_mul
 
 DEFAULT = np.array([0.1, 0.9, -1.8, -0.1, 0.9, -1.8] * 2)
 
@@ -94,10 +96,10 @@ def test_gravity_and_quaternions():
     s = math.sqrt(0.5)
     # Rotation of +90 deg about x: body z-axis points along world -y; gravity in the body frame is
     # R^T (0, 0, -1) = (0, -1, 0).
-    np.testing.assert_allclose(g.gravity_from_quat(row(s, s, 0.0, 0.0))[0], [0.0, -1.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(g.gravity_from_quat(row(1.0, 0.0, 0.0, 0.0))[0], [0.0, 0.0, -1.0])
+    np.testing.assert_allclose(gravity_from_quat(row(s, s, 0.0, 0.0))[0], [0.0, -1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(gravity_from_quat(row(1.0, 0.0, 0.0, 0.0))[0], [0.0, 0.0, -1.0])
     # 90 deg + 90 deg about z = 180 deg about z
-    np.testing.assert_allclose(g.quat_mul(row(s, 0, 0, s), row(s, 0, 0, s))[0], [0, 0, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(quat_mul(row(s, 0, 0, s), row(s, 0, 0, s))[0], [0, 0, 0, 1], atol=1e-12)
 
 
 def test_total_reward_clip_and_scaling():
@@ -130,7 +132,7 @@ def test_actor_obs_layout_and_noise():
     assert obs.shape == (M, 48)
     expect = np.concatenate([[1.1, 1, 1], [2] * 3, [3] * 3, [0.3] + [0.5] * 11, [4] * 12, [5] * 12, [6] * 3])
     np.testing.assert_allclose(obs[0], expect)
-    scales = g.noise_scales(g.default_config())
+    scales = g.noise_scales(go1_joystick.default_config())
     np.testing.assert_allclose(scales[[0, 3, 6, 9, 21]], [0.1, 0.2, 0.05, 0.03, 1.5])
 
 

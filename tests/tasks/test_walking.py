@@ -9,7 +9,7 @@ import pytest
 
 import tasks
 from tasks import base
-from tasks.walking import walking_metric
+from tasks.walking_metric import walking_metric
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,4 +1,6 @@
-"""Flags shared by every experiment script, validated before any worker starts.
+"""The experiments' command line: the flags shared by every experiment script, validated before any worker
+starts, and ``run_experiment``, which builds the run from them and trains it (``training/trainer.py``).
+The family CLIs (``hora_cli``, ``mjx_cli``, ``robot_cli``) build on these flags and on ``launch``.
 
 An experiment is a few lines::
 

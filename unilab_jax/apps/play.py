@@ -11,8 +11,8 @@ rasteriser (Debian/Ubuntu: ``apt-get install libegl1 libegl-mesa0 libgl1-mesa-dr
 ``MUJOCO_GL=osmesa`` (needs libosmesa6) to use OSMesa instead.
 
 Python API (notebooks): ``rollout_frames(logdir, ...) -> (frames [T, H, W, 3] uint8, stats)`` and
-``write_video(frames, path, fps)``; ``SceneRenderer`` and ``run_episodes`` (from
-``unilab_jax.training.evaluation``).
+``write_video(frames, path, fps)``, both importable from here. ``write_video``, ``SceneRenderer`` and
+``run_episodes`` live in ``unilab_jax.training.evaluation`` (the trainer's evaluations and clips use them too).
 """
 
 from __future__ import annotations

@@ -3,14 +3,21 @@
 * ``interface``: ``Robot`` (connect / reset / step / estop / clear_estop / health / close), ``RobotSpec``,
   ``Health``, ``Step`` and the errors (``RobotDisconnected``, ``RobotEstopped``, ``RobotClaimed``, ...).
 * ``sim``: ``SimRobot(SimConfig(arm, task, speed, latency_s, ...))``, MuJoCo arms that behave like hardware.
-* ``scenes`` / ``ik`` / ``tasks`` / ``experts``: Menagerie arm scenes (Franka; UR5e + Robotiq 2F-85),
-  damped-least-squares IK, peg insertion and pick-and-place, scripted experts.
+* ``scenes`` / ``ik`` / ``manipulation`` / ``experts``: Menagerie arm scenes (Franka; UR5e + Robotiq 2F-85),
+  damped-least-squares IK, the manipulation tasks (peg insertion and pick-and-place, ``robots/manipulation.py``)
+  and scripted experts.
 * ``server`` / ``client`` / ``protocol`` / ``serve``: a robot server process per robot over ZeroMQ
   (``python -m unilab_jax.robots.serve --robot=franka --task=pick_place --port=5555``) and
   ``RobotClient(address)``, which implements ``Robot``.
+* ``inventory``: which robots a run uses (``--robots``), local simulated servers for them, discovery.
+* ``operator`` / ``teleop``: the operator channel (a person or the scripted expert overriding the policy)
+  and teleoperation devices.
 * ``gl``: which offscreen OpenGL backend renders here.
+* ``record``: only the command ``python -m unilab_jax.robots.record``, kept at its documented name; it
+  forwards to ``unilab_jax.apps.record`` (the applications wing), which holds the code.
 
-Layering: this package imports numpy, mujoco (+ mujoco_menagerie to locate models), zmq, msgpack and
-the standard library only; never jax, mlx, the trainer, the runtime or the algorithms. Importing the
-package itself imports nothing.
+Layering: apart from that forwarder, this package imports numpy, mujoco (+ mujoco_menagerie to locate
+models), zmq, msgpack and the standard library only; never jax, mlx, the tasks, the trainer, the runtime or
+the algorithms (tests/test_layers.py: the robots are the lowest sub-layer of the resources, the forwarder
+sits above the applications it forwards to). Importing the package itself imports nothing.
 """

@@ -2,7 +2,7 @@
 
 ``expert = make_expert(spec)``; ``expert.reset()`` at each episode start; ``action = expert(obs)``
 returns float32 ``[7]`` in [-1, 1]. Privileged layout (see ``robots.sim``): tcp position (3),
-tcp quaternion (4), gripper opening (1), task state (``robots.tasks``).
+tcp quaternion (4), gripper opening (1), task state (``robots.manipulation``).
 
 ``evaluate_expert(task, arm, episodes)`` measures an expert's success rate in-process.
 

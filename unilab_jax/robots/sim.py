@@ -16,7 +16,7 @@
 Proprioception ``[13]``: tcp position (3), tcp orientation as the first two columns of its rotation
 matrix (6), tcp linear velocity (3), gripper opening in [0, 1] (1 = open).
 Privileged ``[8 + task.state_dim]``: exact tcp position (3), tcp quaternion (4), gripper opening (1),
-then the task state (see ``robots.tasks``).
+then the task state (see ``robots.manipulation``).
 """
 
 from __future__ import annotations

@@ -17,12 +17,10 @@ Replay algorithms use ``pool.sample(batch_size, rng)`` and ``pool.replay_size()`
 this process and runs their chunks inside ``collect`` / ``sample`` / ``pump``: the same shared-memory
 path, deterministic, debuggable with pdb.
 
-Worker processes use the ``spawn`` context. While they are started, the learner's ``__main__``
-module is hidden from multiprocessing so the children do not re-import the training script (which
-would import jax into every worker and slow its start); workers import only the runtime, the task
-and the algorithm module. ``close()`` raises a shared stop flag, joins the workers (SIGKILL after a
-grace period) and unlinks every segment; it is idempotent and also runs from a ``weakref.finalize``
-at exit.
+Worker processes use the ``spawn`` context, started without re-running the learner's script and with
+pinned thread pools (``unilab_jax/runtime/spawn.py``). ``close()`` raises a shared stop flag, joins the
+workers (SIGKILL after a grace period) and unlinks every segment; it is idempotent and also runs from a
+``weakref.finalize`` at exit. ``stats()`` reads the workers' counters (``unilab_jax/runtime/pool_stats.py``).
 
 Worker faults are handled while the learner waits on the pool (``collect``, ``sample``,
 ``wait_replay``: every ``poll`` seconds), in the learner's consumer thread, so the recovery may touch
@@ -50,39 +48,31 @@ import importlib
 import logging
 import multiprocessing as mp
 import os
-import sys
 import time
 import weakref
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from unilab_jax.runtime.buffers import ReplayBuffer, TrajectoryBuffer, transition_layout
+from unilab_jax.runtime.pool_stats import PoolStats
 from unilab_jax.runtime.ring import RingTimeout, StopRequested, wait_for
 from unilab_jax.runtime.shm import SharedArrays, cleanup_stale
+from unilab_jax.runtime.spawn import PoolResources, hidden_main, worker_environment
 from unilab_jax.runtime.weights import WeightChannel
 from unilab_jax.runtime.worker import (
     CHUNKS,
-    EPISODES,
     FAILED,
     HEARTBEAT,
-    INTERRUPTED,
-    JAX,
     NEW,
-    NONFINITE,
     PID,
     READY,
     RESUME_VERSION,
     STATUS,
     STEP_LIMIT,
     STEPS,
-    STOP_FLAG,
-    TERM_ROWS,
-    TIMING,
     VERSION,
-    W_RETRIES,
-    WAITING,
     Worker,
     WorkerArgs,
     control_layout,
@@ -115,93 +105,6 @@ def load_algo(name: str) -> Any:
     return mod
 
 
-@contextlib.contextmanager
-def _hidden_main() -> Iterator[None]:
-    """Keeps spawn from re-running the learner's main script in the workers."""
-    main = sys.modules.get("__main__")
-    saved = {}
-    if main is not None:
-        for attr in ("__file__", "__spec__"):
-            if hasattr(main, attr):
-                saved[attr] = getattr(main, attr)
-        if "__file__" in saved:
-            del main.__file__
-        main.__spec__ = None
-    try:
-        yield
-    finally:
-        if main is not None:
-            for attr, value in saved.items():
-                setattr(main, attr, value)
-            if "__spec__" not in saved:
-                with contextlib.suppress(AttributeError):
-                    del main.__spec__
-
-
-_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
-                "NUMEXPR_NUM_THREADS", "BLIS_NUM_THREADS")
-
-
-@contextlib.contextmanager
-def _worker_environment(threads: int) -> Iterator[None]:
-    """Spawned workers inherit the environment: pin their BLAS / OpenMP pools to ``threads``.
-
-    A worker's policy matmuls are tiny ([M, 48] x [48, 512] ...); a BLAS pool of one thread per core
-    in each of W workers oversubscribes the CPU and made inference ~20x slower in measurements here.
-    """
-    saved = {k: os.environ.get(k) for k in _THREAD_VARS}
-    os.environ.update({k: str(threads) for k in _THREAD_VARS})
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def cpu_placement(num_workers: int, learner_cores: int, cpus: Sequence[int] | None = None) -> list[list[int]]:
-    """Each worker's CPU set when the first ``learner_cores`` usable CPUs (``cpus``, default this process's
-    affinity) are left free for the learner process: the other CPUs are split into ``num_workers``
-    contiguous shares (one CPU each, shared round-robin, when there are more workers than CPUs)."""
-    cpus = sorted(os.sched_getaffinity(0) if cpus is None else cpus)
-    if not 0 <= learner_cores < len(cpus):
-        raise ValueError(f"learner_cores={learner_cores}: must leave at least one of the {len(cpus)} usable CPUs "
-                         "to the workers")
-    rest = cpus[learner_cores:]
-    if num_workers > len(rest):
-        return [[rest[i % len(rest)]] for i in range(num_workers)]
-    return [[int(c) for c in share] for share in np.array_split(rest, num_workers)]
-
-
-class _Resources:
-    """What must be released at close: processes and segments (referenced by the finalizer)."""
-
-    def __init__(self) -> None:
-        self.procs: list[Any] = []
-        self.closers: list[Any] = []  # objects with close(), closed in reverse order
-        self.control: SharedArrays | None = None
-        self.closed = False
-
-    def shutdown(self, grace: float = 5.0) -> None:
-        if self.closed:
-            return
-        self.closed = True
-        if self.control is not None:
-            with contextlib.suppress(Exception):
-                self.control["flags"][STOP_FLAG] = 1
-        deadline = time.monotonic() + grace
-        for p in self.procs:
-            p.join(max(0.0, deadline - time.monotonic()))
-        for p in self.procs:  # workers ignore SIGTERM (see worker_main): past the grace period, SIGKILL
-            if p.is_alive():
-                p.kill()
-                p.join(2.0)
-        for obj in reversed(self.closers):
-            with contextlib.suppress(Exception):
-                obj.close()
-
 
 class WorkerPool:
     """Rollout workers + shared-memory buffers + weight channel (see module docstring).
@@ -228,7 +131,7 @@ class WorkerPool:
       max_env_steps: replay buffers only: workers stop stepping once the pool-wide env-step count
         reaches it (see :meth:`set_step_limit`).
       worker_cpus: per worker, the CPUs it (and the MuJoCo threads it starts) may run on
-        (``os.sched_setaffinity`` right after the spawn; :func:`cpu_placement`); None: no affinity.
+        (``os.sched_setaffinity`` right after the spawn; ``spawn.cpu_placement``); None: no affinity.
     """
 
     def __init__(
@@ -288,7 +191,7 @@ class WorkerPool:
         stale = cleanup_stale()  # segments of runs whose creator was killed (kill -9 of the tree)
         if stale:
             log.warning("removed %d stale shared-memory segments of dead runs: %s", len(stale), stale)
-        self._res = _Resources()
+        self._res = PoolResources()
         self._finalizer = weakref.finalize(self, self._res.shutdown)
         try:
             n_sums = len(self.spec.reward_terms) + len(self.spec.episode_metrics)
@@ -322,8 +225,7 @@ class WorkerPool:
         self._procs: list[Any] = [None] * num_workers
         self._serial_workers: list[Worker] = []
         self._started = False
-        self._t_start = time.monotonic()
-        self._last_stats: tuple[float, int, np.ndarray, np.ndarray] | None = None
+        self._stats = PoolStats(ctl, self.spec)
         self._last_death_check = 0.0
         self.version = -1
         self._restarts = [0] * num_workers
@@ -364,13 +266,13 @@ class WorkerPool:
                 wait_for(lambda: True if (status != 0).all() else None, timeout=timeout,
                          check=check, poll=self.poll, what="workers to start")
                 self._check_workers()
-        self._t_start = time.monotonic()
+        self._stats.restart_clock()
         return self
 
     def _spawn(self, i: int) -> None:
         old = self._procs[i]
         p = self._ctx.Process(target=worker_main, args=(self._args[i],), name=f"unilab-worker-{i}", daemon=True)
-        with _hidden_main(), _worker_environment(self.worker_threads):
+        with hidden_main(), worker_environment(self.worker_threads):
             p.start()
         if self.worker_cpus is not None:
             # Before the worker imports anything (seconds): threads it starts later inherit the set.
@@ -649,58 +551,6 @@ class WorkerPool:
         return int(self._ctl["worker"][:, STEPS].sum())
 
     def stats(self) -> dict[str, Any]:
-        """Env steps and rates, recent episodes, per-term reward means (since the previous call)."""
-        words = self._ctl["worker"].copy()
-        now = time.monotonic()
-        steps = int(words[:, STEPS].sum())
-        term_sum = self._ctl["term_sum"].sum(axis=0)
-        term_rows = int(words[:, TERM_ROWS].sum())
-        episodes = int(words[:, EPISODES].sum())
-        if self._last_stats is None:
-            prev_t, prev_steps, prev_sum, prev_rows, prev_eps = self._t_start, 0, np.zeros_like(term_sum), 0, 0
-        else:
-            prev_t, prev_steps, prev_sum, prev_rows, prev_eps = self._last_stats
-        self._last_stats = (now, steps, term_sum, term_rows, episodes)
-        dt = max(now - prev_t, 1e-9)
-        n_ep = np.minimum(words[:, EPISODES], self._ctl["ep_return"].shape[1])
-        returns = np.concatenate([self._ctl["ep_return"][i, : n_ep[i]] for i in range(self.num_workers)])
-        lengths = np.concatenate([self._ctl["ep_length"][i, : n_ep[i]] for i in range(self.num_workers)])
-        terminated = np.concatenate([self._ctl["ep_terminated"][i, : n_ep[i]] for i in range(self.num_workers)])
-        rows = max(term_rows - prev_rows, 1)
-        terms = {name: float((term_sum[i] - prev_sum[i]) / rows) for i, name in enumerate(self.spec.reward_terms)}
-        n_terms, ended = len(self.spec.reward_terms), episodes - prev_eps
-        # Per-episode task metrics (e.g. the intervention rate): means over the episodes ended since the last call.
-        per_episode = {name: float((term_sum[n_terms + j] - prev_sum[n_terms + j]) / ended)
-                       for j, name in enumerate(self.spec.episode_metrics) if ended > 0}
-        retries = int(words[:, W_RETRIES].sum())
-        out = {
-            "env_steps": steps,
-            "env_steps_per_s": (steps - prev_steps) / dt,
-            "env_steps_per_s_total": steps / max(now - self._t_start, 1e-9),
-            "episodes": episodes,
-            "episode_metrics": per_episode,
-            "episode_return_mean": float(returns.mean()) if returns.size else float("nan"),
-            "episode_length_mean": float(lengths.mean()) if lengths.size else float("nan"),
-            "episode_terminated_fraction": float(terminated.mean()) if terminated.size else float("nan"),
-            "recent_episode_returns": returns,
-            "recent_episode_lengths": lengths,
-            "reward_terms": terms,
-            "worker_policy_versions": words[:, VERSION].tolist(),
-            "published_version": self.version,
-            "weight_read_retries": retries,
-            "chunks": int(words[:, CHUNKS].sum()),
-            "worker_pids": words[:, PID].tolist(),
-            "workers_with_jax": int(words[:, JAX].sum()),
-            "worker_restarts": sum(self._restarts),
-            "nonfinite_rows": int(words[:, NONFINITE].sum()),
-            "interrupted_steps": int(words[:, INTERRUPTED].sum()),
-            "workers_waiting": int(words[:, WAITING].sum()),  # inside a task step, e.g. for a lost robot
-        }
-        timing = self._ctl["timing"].sum(axis=0)
-        total = max(float(timing.sum()), 1e-9)
-        out["worker_time_fraction"] = {name: float(timing[i] / total) for i, name in enumerate(TIMING)}
-        out["worker_wait_s"] = float(timing[TIMING.index("wait")])  # summed over workers, since the start
-        if isinstance(self.buffer, ReplayBuffer):
-            out["replay_size"] = self.buffer.size()
-            out["replay_resampled"] = self.buffer.resampled
-        return out
+        """Env steps and rates, recent episodes, per-term reward means (since the previous call; see
+        ``unilab_jax/runtime/pool_stats.py``)."""
+        return self._stats.read(self.version, sum(self._restarts), self.buffer)

@@ -108,7 +108,7 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     whose termination is success, the ``LOGGED`` entries of the task's own metric where it has one
     (``task.eval_tracker()``, e.g. ``g1_track``'s clip completion), else the walking metric on locomotion tasks).
     The trainer's evaluations run it too; ``stop`` set before the episodes end raises :class:`StopRequested`."""
-    from tasks.walking import WalkingTracker, is_locomotion
+    from tasks.walking_metric import WalkingTracker, is_locomotion
 
     m = task.num_envs
     limit = task.spec.episode_length if max_steps is None else min(int(max_steps), task.spec.episode_length)

@@ -107,7 +107,7 @@ def make_env(task: str, num_envs: int, overrides: dict[str, Any] | None = None,
 def evaluate(env: EnvFns, act: Any, weights: Any, key: jax.Array) -> dict[str, float]:
     """One deterministic episode in each env: mean/std return summed until each env's first end, mean
     length, fall rate (terminated, not truncated), and the walking metric over the same episodes
-    (``tasks.walking.WalkingTracker``'s tracking and yaw-rate errors, ``eval/walking`` by
+    (``tasks.walking_metric.WalkingTracker``'s tracking and yaw-rate errors, ``eval/walking`` by
     ``metrics.WALKING``). ``act(weights, obs) -> action`` is jitted."""
     state = env.reset(key)
     n = env.env.num_envs

@@ -1,4 +1,17 @@
-"""Where the learner's batches come from: trajectory slots (on-policy) or the replay rings (off-policy)."""
+"""Where the learner's batches come from: trajectory slots (on-policy) or the replay rings (off-policy).
+
+Cut out of the trainer (``training/trainer.py``), which runs one source per run and asks it for batches
+through the prefetch thread (``produce``) and for its bookkeeping after each update (``advance``):
+
+* ``TrajectorySource``: one slot per worker (lock-step) or the next ready slots (async) from the pool's
+  ``collect``, moved to the device; logs the policy lag.
+* ``ReplaySource``: [U, B] minibatches sampled from the replay rings, with the warm-up, the update-to-data
+  pacing (``--utd_mode``), seeded per-batch sampling that a resumed run repeats, and optionally the device
+  mirror (``training/device_replay.py``), the persistent store (``runtime/replay_store.py``) and prior
+  data (RLPD, ``core/rlpd_kernels.py``).
+
+Both turn the pool's statistics into the logged ``episode/*``, ``reward/*`` and ``perf/*`` scalars.
+"""
 
 from __future__ import annotations
 
@@ -87,7 +100,7 @@ class ReplaySource:
       left off. Without a store, a resumed run warms up again and counts the ratio afresh.
     * With prior data (``prior``, from an algorithm's ``prior_dir``: RLPD), every minibatch is composed
       of online rows drawn as above and ``prior_fraction`` of rows drawn uniformly from the prior data
-      (``core.rlpd.compose``; symmetric sampling at 0.5). The warm-up and the ratio count online data only.
+      (``core.rlpd_kernels.compose``; symmetric sampling at 0.5). The warm-up and the ratio count online data only.
     """
 
     _TICK_S = 0.25  # seconds between no-op items while the ring warms up
@@ -98,7 +111,7 @@ class ReplaySource:
                  hot_fraction: float = 0.5, saved: dict[str, Any] | None = None, mirror: Any = None, *,
                  total_steps: int, hold_window: int | None = None, prior: dict[str, np.ndarray] | None = None):
         self._pool, self._xp, self._cfg, self._mirror = pool, xp, cfg, mirror
-        # Prior data (RLPD): each minibatch is (online, prior) rows as core.rlpd.symmetric_split says.
+        # Prior data (RLPD): each minibatch is (online, prior) rows as core.rlpd_kernels.symmetric_split says.
         self._prior = prior
         self._rows = (rlpd.symmetric_split(cfg.batch_size, cfg.prior_fraction) if prior is not None
                       else (cfg.batch_size, 0))

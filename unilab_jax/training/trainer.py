@@ -1,16 +1,23 @@
-"""The training loop for trajectory (on-policy) algorithms: PPO and APPO.
+"""The training loop on the heterogeneous runtime, for every algorithm: trajectory (on-policy: PPO, APPO and
+their variants) and replay (off-policy: SAC, TD3, FastSAC, FlashSAC, RLPD, SAC Flow).
 
-Workers collect into shared-memory slots while the learner updates; a prefetch thread pulls the
-next batch and moves it to the device while the jitted update of the previous one runs. In
-lock-step mode the workers wait for the new weights; in async mode they never wait and the
-policy lag (learner version minus the version that produced each transition) is logged.
+Rollout workers (``runtime/pool.py``, or ``runtime/ray_pool.py`` over Ray nodes) collect into shared memory
+while the learner updates: trajectory slots, or per-worker replay rings. The batches come from a source
+(``training/sources.py``: ``TrajectorySource``, or ``ReplaySource`` with the update-to-data pacing, the
+persistent replay store, prior data and the device mirror); a prefetch thread (``training/threads.py``) pulls
+the next batch and moves it to the device while the jitted update of the previous one runs. In lock-step
+mode the workers wait for the new weights; in async mode they never wait and the policy lag (learner
+version minus the version that produced each transition) is logged. Evaluations and clips run in background
+threads (``training/evaluation.py``); checkpoints are written at evaluations, every ``checkpoint_every``
+env steps and at the end (``--resume`` continues from the last); an update with a non-finite loss stops the
+run (:class:`LearningDiverged`).
 
 Stopping: SIGINT and SIGTERM set a stop flag that every wait of the main thread checks. The learner's
 own calls (the update, whose first call compiles, and the weight download) run in a dedicated thread
 (:class:`LearnerThread`), so a stop never waits long for them: an update in flight gets
 ``_STOP_GRACE_S`` to finish (a steady GPU update takes milliseconds), then it is abandoned, the state
 saved is the one of the last completed update, and the process leaves the abandoned call behind
-(``learner_busy()``). After a stopped run the CLI exits without the interpreter's teardown: it would wait
+(``threads.learner_busy()``). After a stopped run the CLI exits without the interpreter's teardown: it would wait
 for an abandoned call, and once (a fresh-clone CI) it aborted (exit -6) in third-party teardown after a
 complete summary; everything the run owns is saved and closed by then. Updates donate their input only on
 accelerators, where the one call that can outlast the grace is the first compile, before any
@@ -58,7 +65,7 @@ class RunConfig:
     eval_every: int = 0  # env steps between evaluations (0: only at the end)
     eval_envs: int = 16
     checkpoint_every: int = 0  # env steps between checkpoints (0: at evaluations and at the end)
-    video_every: int = 0  # env steps between clips of an evaluation episode (apps/play.py ClipRecorder; 0: none)
+    video_every: int = 0  # env steps between clips of an evaluation episode (evaluation.py ClipRecorder; 0: none)
     serial: bool = False  # run the workers in-process (debugging, deterministic tests)
     # Persistent replay (off-policy algorithms; unilab_jax/runtime/replay_store.py): every transition is
     # also written to a crash-safe store in replay_dir, which --resume reopens.
@@ -75,7 +82,7 @@ class RunConfig:
     utd_mode: str = "hold"
     utd_window: int = 0  # env steps the workers may run ahead of the ratio (0: four learner calls' worth)
     # Worker CPU affinity: -1 none; K >= 0: workers pinned to the usable CPUs except the first K, which stay free
-    # for the learner process (runtime/pool.py cpu_placement).
+    # for the learner process (runtime/spawn.py cpu_placement).
     pin_cpus: int = -1
     # JAX learner: "1" (one device, the plain path), "N" or "all": data-parallel over the first N local devices
     # (unilab_jax/training/sharding.py; the batch axis must divide evenly).
@@ -249,7 +256,8 @@ class Trainer:
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
         from unilab_jax.checkpoint import Checkpointer
-        from unilab_jax.runtime.pool import WorkerPool, cpu_placement
+        from unilab_jax.runtime.pool import WorkerPool
+        from unilab_jax.runtime.spawn import cpu_placement
         from unilab_jax.runtime.weights import WeightPublisher
         from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
 
