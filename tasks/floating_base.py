@@ -21,10 +21,10 @@ def gravity_from_quat(quat):
 
 
 def quat_mul(a, b):
-    """Hamilton product of [M, 4] quaternions (w, x, y, z)."""
+    """Hamilton product of quaternions (w, x, y, z) over the leading axes (``[..., 4]``)."""
     xp = shim.namespace(a, b)
-    aw, ax, ay, az = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
-    bw, bx, by, bz = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
     return xp.stack(
         [
             aw * bw - ax * bx - ay * by - az * bz,

@@ -56,7 +56,7 @@ import mujoco
 import numpy as np
 
 from tasks import base, g1_motions, g1_walk, go1_math, walking
-from tasks.floating_base import gravity_from_quat
+from tasks.floating_base import gravity_from_quat, quat_mul
 from unilab_jax import xp as shim
 
 REWARD_SCALES = {"anchor_pos": 0.5, "anchor_ori": 0.5, "body_pos": 1.0, "body_ori": 1.0, "body_lin_vel": 1.0,
@@ -120,15 +120,6 @@ def build_spec(config: G1TrackConfig) -> mujoco.MjSpec:
 # --------------------------------------------------------------------------------------------------
 # Task math on the shim: [..., 4] quaternions (w, x, y, z), [..., 3] vectors; M envs, B bodies.
 # --------------------------------------------------------------------------------------------------
-def quat_mul(a, b):
-    """Hamilton product over the leading axes."""
-    xp = shim.namespace(a, b)
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return xp.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
 def quat_conj(q):
     xp = shim.namespace(q)
     return xp.concat([q[..., :1], -q[..., 1:]], axis=-1)
