@@ -12,7 +12,7 @@ from unilab_jax.sizing import SizedFor
 
 # Frames: Go1's 48-dim observation without the measured body-frame linear velocity (columns 0-2), as
 # in HIMLoco, whose robots do not measure it; the estimator's target is the clean body-frame linear
-# velocity of the successor state, critic columns 57-59 (tasks/go1_joystick.py critic_obs).
+# velocity of the successor state, critic columns 57-59 (tasks/go1_math.py observe).
 TASK_RECIPE = {"history_len": 6, "history_extrinsics": False, "history_exclude": (0, 1, 2)}
 RECIPE = {**PPO_RECIPE, "velocity_cols": (57, 58, 59)}
 
