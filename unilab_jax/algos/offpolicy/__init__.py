@@ -1,2 +1,3 @@
-"""Off-policy family: SAC, TD3, FastSAC and FlashSAC declarations, their JAX and MLX learners and the
-scaffolding both share (``learner_common``)."""
+"""Off-policy family: SAC, TD3, FastSAC, FlashSAC, RLPD and SAC Flow declarations (``OffPolicyConfig`` in
+``base_config``, the pieces they share in ``shared``), their JAX and MLX learners and the scaffolding both share
+(``learner_common``, with the order of a gradient step written once)."""
