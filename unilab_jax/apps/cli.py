@@ -140,6 +140,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     ``sized_for``: what the recipe was tuned on (``auto`` sizing splits its environments; default DEV_VM)."""
     import tasks
     from unilab_jax import algos
+    from unilab_jax.algos import contract
     from unilab_jax.config import apply_overrides, parse_overrides
     from unilab_jax.training.trainer import RunConfig
 
@@ -175,12 +176,10 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
     task_config = apply_overrides(tasks.default_config(task_name), task_overrides)  # rejects unknown keys
     task_overrides = {k: getattr(task_config, k) for k in task_overrides}
-    check = getattr(module, "check_run", None)  # an algorithm's own flag checks (platforms, task kind)
-    if check is not None:
-        try:
-            check(FLAGS.platform, task_config, config)
-        except ValueError as e:
-            raise FlagError(str(e)) from e
+    try:  # the algorithm's own flag checks (platforms, task kind)
+        contract.hooks(module).check_run(FLAGS.platform, task_config, config)
+    except ValueError as e:
+        raise FlagError(str(e)) from e
     if FLAGS.replay_dir and module.BUFFER != "replay":
         raise FlagError(f"--replay_dir: {algo} does not use a replay buffer")
     if FLAGS.replay_on_device == "on" and (module.BUFFER != "replay" or FLAGS.platform != "jax" or FLAGS.replay_dir):

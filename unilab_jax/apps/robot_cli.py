@@ -50,6 +50,7 @@ from typing import Any
 
 from absl import flags
 
+from unilab_jax import algos
 from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
 
 # The manipulation recipe of sac_franka_peg, rlpd_franka_peg and rlpd_franka_pick: small networks and utd 4 fit a
@@ -165,7 +166,7 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         config = dataclasses.replace(config, replay_capacity=min(config.replay_capacity, run.total_steps))
     if "robots" in task_overrides:
         raise FlagError("--task_config=robots=...: give the robots with --robots")
-    prior = hasattr(config, "prior_dir")
+    prior = algos.info(module).prior_data
     if not prior and (FLAGS.demos or FLAGS["num_demos"].present):
         raise FlagError(f"--demos / --num_demos: {algo} learns without prior data")
     if FLAGS.demos and not os.path.isfile(os.path.join(FLAGS.demos, "index.json")):
@@ -209,7 +210,7 @@ def _train(validated: tuple, dense_reward: bool) -> None:
         if task_config.cameras:
             _check_cameras(found, task_config, config)
         demo_s = 0.0
-        if hasattr(config, "prior_dir"):
+        if algos.info(module).prior_data:
             prior_dir, demo_s = _demos(inv.addresses, run, task_overrides)
             config = dataclasses.replace(config, prior_dir=prior_dir)
         overrides = {**task_overrides, "robots": tuple(inv.addresses)}

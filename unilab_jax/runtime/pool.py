@@ -95,7 +95,8 @@ def load_algo(name: str) -> Any:
     if name in ("__main__", "__mp_main__"):
         raise ValueError("the algorithm module must be importable by name in the workers, not __main__")
     mod = importlib.import_module(name)
-    missing = [a for a in ("SYNC", "BUFFER", "extras", "act") if not hasattr(mod, a)]
+    from unilab_jax.algos.contract import missing as lacking  # what the workers read (RolloutDeclaration)
+    missing = lacking(mod)
     if missing:
         raise ValueError(f"algorithm module {name!r} lacks {missing} (see docs/ARCHITECTURE.md)")
     if mod.SYNC not in ("lockstep", "async"):

@@ -14,7 +14,8 @@ learner process; both run the same code. Per *chunk* (``T`` control steps) it
    rows at its cursor), stamping ``policy_version`` and tracking per-env episode return / length;
 4. publishes the slot (trajectory) or commits each step's rows (replay).
 
-Only numpy, mujoco, the task and the algorithm module are imported here; never jax.
+Only numpy, mujoco, the task, the algorithm module and its contract (``unilab_jax.algos.contract``, pure
+standard library) are imported here; never jax.
 Counters for monitoring (env steps, finished episodes, reward-term sums, status, errors) live in a
 small shared control segment that the learner reads in :meth:`WorkerPool.stats`.
 
@@ -52,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from unilab_jax.algos import contract
 from unilab_jax.runtime.buffers import ReplayBuffer, TrajectoryBuffer
 from unilab_jax.runtime.ring import fence
 from unilab_jax.runtime.shm import SharedArrays, ShmHandle
@@ -173,12 +175,12 @@ class Worker:
         self._reset_envs = getattr(self.task, "reset_envs", None)
         self.m = args.envs_per_worker
         self.rng = np.random.default_rng(np.random.SeedSequence([args.worker_seed, 0x5EED]))
-        # Exploration noise held for NOISE_HOLD_STEPS control steps per env (an algorithm module's
-        # optional attribute; 1: a fresh draw every step). Redrawn early when an env's episode ends.
-        self.noise_hold = max(int(getattr(self.algo, "NOISE_HOLD_STEPS", 1)), 1)
+        hooks = contract.hooks(self.algo)  # the declaration's optional hooks, defaults filled in
+        # Exploration noise held for NOISE_HOLD_STEPS control steps per env (1: a fresh draw every step).
+        # Redrawn early when an env's episode ends.
+        self.noise_hold = hooks.noise_hold_steps
         # Standard normals per env step: the action dimension, or the algorithm's ``noise_dim(action_dim)``.
-        noise_dim = getattr(self.algo, "noise_dim", None)
-        self.noise_dim = int(noise_dim(self.spec.action_dim)) if noise_dim else self.spec.action_dim
+        self.noise_dim = int(hooks.noise_dim(self.spec.action_dim))
         self._noise = np.zeros((self.m, self.noise_dim), np.float32)
         self._noise_left = np.zeros(self.m, np.int64)  # steps each env's current draw is still held
         self.obs, self.critic_obs = self.task.reset()

@@ -449,7 +449,7 @@ def make_trainer(run: MjxRunConfig, algo_module: Any, algo_config: Any, task_ove
     """The MJX trainer of ``algo_module``'s buffer kind (trajectory: PPO; replay: the SAC family)."""
     if algo_module.BUFFER == "trajectory" and algo_module.SYNC == "lockstep":
         cls = PPOMjxTrainer
-    elif algo_module.BUFFER == "replay" and hasattr(algo_module, "temperature_loss"):
+    elif algo_module.BUFFER == "replay" and algos.info(algo_module).update == "sac":
         cls = OffPolicyMjxTrainer
     else:
         raise ValueError(f"no MJX trainer for algorithm {algo_module.__name__} (PPO and the SAC family have one)")

@@ -223,7 +223,7 @@ class Trainer:
 
     def _load_prior(self) -> dict[str, np.ndarray] | None:
         """The prior data of ``config.prior_dir`` (RLPD's symmetric sampling; None when the algorithm has none)."""
-        directory = getattr(self.config, "prior_dir", "")
+        directory = self.config.prior_dir if algos.info(self.algo).prior_data else ""
         if not directory:
             return None
         from unilab_jax.runtime.prior import load_prior
@@ -279,8 +279,8 @@ class Trainer:
         pool_kwargs = dict(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
                            envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
                            algo_module=self.algo.__name__, weight_template=weights,
-                           horizon=getattr(cfg, "horizon", 32), serial=run.serial,
-                           replay_capacity=max(getattr(cfg, "replay_capacity", 0) // run.num_workers, 1)
+                           horizon=cfg.horizon, serial=run.serial,
+                           replay_capacity=max(cfg.replay_capacity // run.num_workers, 1)
                            if replay else 0,
                            max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
         if run.ray_address:

@@ -70,6 +70,13 @@ class CategoricalSACConfig(SACConfig):
     v_max: float = 10.0
     use_cdq: bool = True
 
+    def problems(self) -> list[str]:
+        problems = super().problems()
+        if self.num_atoms < 2 or not self.v_min < self.v_max:
+            problems.append(f"need num_atoms >= 2 and v_min < v_max (got {self.num_atoms}, "
+                            f"[{self.v_min}, {self.v_max}])")
+        return problems
+
 
 @dataclasses.dataclass(frozen=True)
 class FastSACConfig(CategoricalSACConfig):

@@ -27,6 +27,7 @@ from types import ModuleType
 from typing import Any
 
 from unilab_jax import xp as shim
+from unilab_jax.algos import contract
 from unilab_jax.core import normalizer, pixels
 
 SHIFT = "image_shift"  # a minibatch's DrQ offsets [2, B, 2] (image, next_image), put there by the learners
@@ -56,7 +57,7 @@ def check_algo(algo: ModuleType, spec: Any, config: Any) -> None:
     if not shape:
         return
     name = algo.__name__.rsplit(".", 1)[-1]
-    if not getattr(algo, "IMAGES", False):
+    if not contract.hooks(algo).images:
         raise ValueError(f"{name} does not learn from images, but task {spec.name!r} has image_shape {shape}; "
                          f"use sac, rlpd or sacflow")
     if len(shape) != 3:

@@ -1,27 +1,31 @@
 """What the JAX and MLX off-policy learners share, written once against the shim.
 
 ``learner_jax`` and ``learner_mlx`` differ only in how they drive the gradient steps (``lax.scan`` in
-one jit; a compiled step in a Python loop) and in their optimizer library (optax; ``unilab_mlx.optim``,
-which has optax's names and state layout). Everything else is here: the optimizer choice, network
+one jit; a compiled step in a Python loop), how they draw noise, and in how they take gradients and apply
+optimizer updates (jax and optax; mlx and ``unilab_mlx.optim``, which has optax's names and state layout),
+handed to the steps here as :class:`Ops`. Everything else is here: the optimizer choice, network
 initialisation on numpy, the batch fields, the once-per-call normalizer step, the initial states,
-the published weights and the metric averaging.
+the order of one gradient step (:func:`sac_step`, :func:`td3_step`), the published weights and the metric
+averaging.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from types import ModuleType
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
+from unilab_jax.algos import contract
 from unilab_jax.algos.offpolicy import image_obs, sac, td3
 from unilab_jax.algos.offpolicy.sac import Norms, SACState
 from unilab_jax.algos.offpolicy.td3 import TD3State
-from unilab_jax.core import normalizer
+from unilab_jax.core import normalizer, polyak
 from unilab_jax.fields import IMAGE_FIELDS
 from unilab_jax.fields import REPLAY_FIELDS as BATCH_FIELDS
 
@@ -111,9 +115,9 @@ def td3_metrics(stacked: dict) -> dict:
 
 
 class SACFamilyBase:
-    """The platform-independent half of the SAC-family learners (``algo`` is the algorithm module,
-    which provides ``init_params``, ``critic_loss``, ``actor_loss``, ``temperature_loss`` and optionally
-    ``project_params`` and ``reward_scale``).
+    """The platform-independent half of the SAC-family learners (``algo`` is the algorithm module, a
+    ``contract.SACFamilyDeclaration``: ``init_params``, ``critic_loss``, ``actor_loss``, ``temperature_loss``;
+    its optional hooks, e.g. ``project_params`` and ``reward_scale``, come from ``contract.hooks``).
 
     A task with images (``spec.image_shape``; ``image_obs``): the learners use ``self.critic_loss`` /
     ``self.actor_loss`` (the algorithm's, wrapped to encode the images), read ``self.batch_fields`` and put each
@@ -133,17 +137,17 @@ class SACFamilyBase:
         self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
         self.alpha_tx = opt.adam(config.alpha_learning_rate)
         self.target_entropy = float(config.target_entropy_per_dim * spec.action_dim)
+        hooks = contract.hooks(algo)  # the optional hooks, defaults filled in
         # Standard normals per sample of the policy's reparameterised draw (SAC: |A|; SAC Flow: its chain).
-        noise_dim = getattr(algo, "learner_noise_dim", None)
-        self.noise_dim = noise_dim(config, spec.action_dim) if noise_dim else spec.action_dim
-        self._project = getattr(algo, "project_params", None)
-        self._reward_scale = getattr(algo, "reward_scale", None)
+        self.noise_dim = hooks.learner_noise_dim(config, spec.action_dim)
+        self.project = hooks.project
+        self._reward_scale = hooks.reward_scale
         # An algorithm with ``critic_noise_shape(config)`` (RLPD) gets ``(eps_next, u)`` in its critic loss,
         # ``u`` uniform of that shape, drawn per gradient step from a third key of the step's split.
-        shape = getattr(algo, "critic_noise_shape", None)
+        shape = hooks.critic_noise_shape
         self.critic_noise_shape = None if shape is None else tuple(shape(config))
         # ``actor_every`` (RLPD): the actor and the temperature move on every actor_every-th gradient step only.
-        self.actor_every = int(getattr(config, "actor_every", 1))
+        self.actor_every = int(hooks.actor_every(config))
         # Keys per gradient step: eps_next, eps[, the critic noise u][, the DrQ offsets].
         self.step_keys = 2 + (self.critic_noise_shape is not None) + bool(self.image_shape)
         self.trace_count = 0  # traces of the compiled update / step (tests assert no retracing)
@@ -203,6 +207,128 @@ class SACFamilyBase:
             reward_norm = normalizer.stats_update(reward_norm, batch["reward"][0][:, None])
         state = state._replace(obs_norm=obs_norm, critic_norm=critic_norm, reward_norm=reward_norm)
         return state, Norms(obs_norm, critic_norm, self.xp.astype(self.reward_scale(state), self.xp.float32))
+
+
+class Ops(NamedTuple):
+    """How a platform takes gradients and applies updates; the gradient steps' order around them is written once
+    (:func:`sac_step`, :func:`td3_step`)."""
+
+    value_and_grad: Callable  # (fn, has_aux=False) -> fn's (value, gradient w.r.t. its first argument)
+    apply_updates: Callable  # (params, optimizer updates) -> params
+    global_norm: Callable  # pytree -> its global L2 norm
+    cond: Callable  # (pred, true_fn, false_fn, *operands) -> the chosen function's result (lax.cond; a Python if)
+    # (actor_step, *operands) -> the metrics of a step that leaves the actor: zeros with actor_step's structure
+    skip_metrics: Callable
+
+
+class SACNets(NamedTuple):
+    """What one SAC-family gradient step reads and moves (a ``SACState``'s fields of those names)."""
+
+    actor: Any
+    critic: Any
+    target_critic: Any
+    actor_opt: Any
+    critic_opt: Any
+    log_alpha: Any
+    alpha_opt: Any
+    steps: Any
+
+
+def sac_nets(state: SACState) -> SACNets:
+    """The fields of ``state`` a gradient step moves."""
+    return SACNets(state.actor, state.critic, state.target_critic, state.actor_opt, state.critic_opt, state.log_alpha,
+                   state.alpha_opt, state.steps)
+
+
+def sac_step(learner: SACFamilyBase, ops: Ops, nets: SACNets, norms: Norms, mb: dict, eps_next: Any, eps: Any,
+             do_actor: Any = True) -> tuple[SACNets, dict]:
+    """One SAC-family gradient step, pure in its arguments: 1. the critics; 2. the actor against the updated
+    critics, 3. the temperature (both on the steps ``do_actor`` marks when ``learner.actor_every`` > 1); 4. the
+    target critics (Polyak); the step's metrics. ``learner``: its losses, optimizers, ``project`` and settings;
+    ``eps_next``, ``eps``: the step's draws (RLPD: ``eps_next = (eps_next, u)``); ``mb`` already augmented."""
+    cfg, xp, project = learner.config, learner.xp, learner.project
+    # 1. critics
+    (_, c_metrics), c_grads = ops.value_and_grad(learner.critic_loss, has_aux=True)(
+        nets.critic, nets.target_critic, nets.actor, nets.log_alpha, norms, mb, eps_next, cfg)
+    updates, critic_opt = learner.critic_tx.update(c_grads, nets.critic_opt, nets.critic)
+    critic = project(ops.apply_updates(nets.critic, updates))
+
+    def actor_step(nets: SACNets, critic: Any, mb: dict, eps: Any) -> tuple[tuple, dict]:
+        # 2. actor, against the updated critics
+        (_, (a_metrics, log_prob)), a_grads = ops.value_and_grad(learner.actor_loss, has_aux=True)(
+            nets.actor, critic, nets.log_alpha, norms, mb, eps, cfg)
+        updates, actor_opt = learner.actor_tx.update(a_grads, nets.actor_opt, nets.actor)
+        actor = project(ops.apply_updates(nets.actor, updates))
+        # 3. temperature
+        log_alpha, alpha_opt, alpha_loss = nets.log_alpha, nets.alpha_opt, xp.zeros((), dtype=xp.float32)
+        if cfg.autotune_alpha:
+            alpha_loss, g = ops.value_and_grad(learner.algo.temperature_loss)(nets.log_alpha, log_prob,
+                                                                              learner.target_entropy)
+            updates, alpha_opt = learner.alpha_tx.update(g, nets.alpha_opt, nets.log_alpha)
+            log_alpha = ops.apply_updates(nets.log_alpha, updates)
+        return (actor, actor_opt, log_alpha, alpha_opt), {**a_metrics, "alpha_loss": alpha_loss,
+                                                          "actor_grad_norm": ops.global_norm(a_grads)}
+
+    def skip_actor(nets: SACNets, critic: Any, mb: dict, eps: Any) -> tuple[tuple, dict]:
+        return ((nets.actor, nets.actor_opt, nets.log_alpha, nets.alpha_opt),
+                ops.skip_metrics(actor_step, nets, critic, mb, eps))
+
+    if learner.actor_every == 1:
+        (actor, actor_opt, log_alpha, alpha_opt), a_metrics = actor_step(nets, critic, mb, eps)
+    else:
+        (actor, actor_opt, log_alpha, alpha_opt), a_metrics = ops.cond(do_actor, actor_step, skip_actor, nets,
+                                                                        critic, mb, eps)
+        a_metrics["actor_steps"] = xp.asarray(do_actor, dtype=xp.float32)
+    # 4. targets
+    target_critic = project(polyak.polyak(nets.target_critic, critic, cfg.tau))
+    metrics = {**c_metrics, **a_metrics, "alpha": xp.exp(log_alpha), "critic_grad_norm": ops.global_norm(c_grads)}
+    return SACNets(actor, critic, target_critic, actor_opt, critic_opt, log_alpha, alpha_opt, nets.steps + 1), metrics
+
+
+class TD3Nets(NamedTuple):
+    """What one TD3 gradient step reads and moves (a ``TD3State``'s fields of those names)."""
+
+    actor: Any
+    critic: Any
+    target_actor: Any
+    target_critic: Any
+    actor_opt: Any
+    critic_opt: Any
+    steps: Any
+
+
+def td3_nets(state: TD3State) -> TD3Nets:
+    """The fields of ``state`` a gradient step moves."""
+    return TD3Nets(state.actor, state.critic, state.target_actor, state.target_critic, state.actor_opt,
+                   state.critic_opt, state.steps)
+
+
+def td3_step(learner: TD3Base, ops: Ops, nets: TD3Nets, norms: Norms, mb: dict, eps_next: Any,
+             do_actor: Any) -> tuple[TD3Nets, dict]:
+    """One TD3 gradient step, pure in its arguments: the critics; then, on the steps ``do_actor`` marks (every
+    ``policy_delay``-th, Fujimoto's schedule), the actor against the updated critics and both target networks
+    (Polyak); the step's metrics (``td3_metrics`` averages them)."""
+    cfg, xp = learner.config, learner.xp
+    (_, c_metrics), c_grads = ops.value_and_grad(td3.critic_loss, has_aux=True)(
+        nets.critic, nets.target_actor, nets.target_critic, norms, mb, eps_next, cfg)
+    updates, critic_opt = learner.critic_tx.update(c_grads, nets.critic_opt, nets.critic)
+    nets = nets._replace(critic=ops.apply_updates(nets.critic, updates), critic_opt=critic_opt)
+
+    def actor_step(nets: TD3Nets, mb: dict) -> tuple[TD3Nets, Any]:
+        (loss, _), grads = ops.value_and_grad(td3.actor_loss, has_aux=True)(nets.actor, nets.critic, norms, mb)
+        updates, actor_opt = learner.actor_tx.update(grads, nets.actor_opt, nets.actor)
+        actor = ops.apply_updates(nets.actor, updates)
+        return nets._replace(actor=actor, actor_opt=actor_opt,
+                             target_actor=polyak.polyak(nets.target_actor, actor, cfg.tau),
+                             target_critic=polyak.polyak(nets.target_critic, nets.critic, cfg.tau)), loss
+
+    def skip_actor(nets: TD3Nets, mb: dict) -> tuple[TD3Nets, Any]:
+        return nets, xp.zeros((), dtype=xp.float32)
+
+    nets, a_loss = ops.cond(do_actor, actor_step, skip_actor, nets, mb)
+    metrics = {**c_metrics, "actor_loss_sum": a_loss, "actor_steps": xp.asarray(do_actor, dtype=xp.float32),
+               "critic_grad_norm": ops.global_norm(c_grads)}
+    return nets._replace(steps=nets.steps + 1), metrics
 
 
 class TD3Base:

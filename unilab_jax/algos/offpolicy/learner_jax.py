@@ -14,8 +14,9 @@ The SAC family shares one learner parameterised by the algorithm module, which p
 ``project_params`` (applied to the actor, critic and target critic after every step) and
 ``reward_scale`` (rewards are divided by it; its statistics live in ``state.reward_norm``); with images
 (``spec.image_shape``) the losses are ``image_obs``'s wrappers and each step shifts its images first. What does
-not depend on the platform (optimizers, initial states, the normalizer step, metrics) is
-``learner_common``'s, shared with the MLX learners.
+not depend on the platform (optimizers, initial states, the normalizer step, the order of a gradient step:
+``learner_common.sac_step`` / ``td3_step``, given this platform's ``OPS``, metrics) is ``learner_common``'s,
+shared with the MLX learners.
 
 ``compiler_options`` (e.g. ``{"xla_backend_optimization_level": 0}``, which halves CPU compile time
 for tests and tiny networks) go to ``jax.jit``. ``trace_count`` counts traces of ``update``.
@@ -42,11 +43,21 @@ from unilab_jax.algos.offpolicy import image_obs, td3
 from unilab_jax.algos.offpolicy import learner_common as common
 from unilab_jax.algos.offpolicy.sac import SACState
 from unilab_jax.algos.offpolicy.td3 import TD3State
-from unilab_jax.core import polyak
 
 XP = shim.get("jax")
 # Donated input state on accelerators only (why, and what it gains: unilab_jax/algos/ppo/learner_jax.py).
 DONATE_STATE = 0 if jax.default_backend() != "cpu" else ()
+
+
+def _zeros_like_metrics(actor_step: Any, *operands: Any) -> dict:
+    """Zeros shaped like ``actor_step``'s metrics (``lax.cond``'s other branch must match its structure)."""
+    shapes = jax.eval_shape(actor_step, *operands)[1]
+    return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+
+
+# How the JAX learners take gradients and apply updates (the steps' order is learner_common's).
+OPS = common.Ops(value_and_grad=jax.value_and_grad, apply_updates=optax.apply_updates, global_norm=optax.tree.norm,
+                 cond=jax.lax.cond, skip_metrics=_zeros_like_metrics)
 
 
 def _key_words(key: jax.Array) -> np.ndarray:
@@ -95,8 +106,6 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
 
     def _update(self, state: SACState, batch: dict) -> tuple[SACState, dict]:
         self.trace_count += 1
-        cfg, algo = self.config, self.algo
-        project = self._project or (lambda p: p)
         batch = common.prepare_batch(batch, self.batch_fields)
         state, norms = self.normalize(state, batch)
 
@@ -110,45 +119,10 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
                 eps_next = (eps_next, jax.random.uniform(keys[2], self.critic_noise_shape, jnp.float32))
             if self.image_shape:
                 mb = self.augment({**mb, image_obs.SHIFT: self.draw_shifts(keys[-1], shape[0])})
-            # 1. critics
-            (_, c_metrics), c_grads = jax.value_and_grad(self.critic_loss, has_aux=True)(
-                st.critic, st.target_critic, st.actor, st.log_alpha, norms, mb, eps_next, cfg)
-            updates, critic_opt = self.critic_tx.update(c_grads, st.critic_opt, st.critic)
-            critic = project(optax.apply_updates(st.critic, updates))
-            # 2.-3. actor against the updated critics, then the temperature (every actor_every-th step)
-            if self.actor_every == 1:
-                (actor, actor_opt, log_alpha, alpha_opt), a_metrics = actor_step(st, critic, mb, eps)
-            else:
-                do_actor = (st.steps + 1) % self.actor_every == 0
-                (actor, actor_opt, log_alpha, alpha_opt), a_metrics = jax.lax.cond(
-                    do_actor, actor_step, skip_actor, st, critic, mb, eps)
-                a_metrics["actor_steps"] = do_actor.astype(jnp.float32)
-            # 4. targets
-            target_critic = project(polyak.polyak(st.target_critic, critic, cfg.tau))
-            metrics = {**c_metrics, **a_metrics, "alpha": jnp.exp(log_alpha),
-                       "critic_grad_norm": optax.tree.norm(c_grads)}
-            new = st._replace(actor=actor, critic=critic, target_critic=target_critic, actor_opt=actor_opt,
-                              critic_opt=critic_opt, log_alpha=log_alpha, alpha_opt=alpha_opt, steps=st.steps + 1)
-            return new, metrics
-
-        def actor_step(st: SACState, critic: Any, mb: dict, eps: jax.Array) -> tuple[tuple, dict]:
-            (_, (a_metrics, log_prob)), a_grads = jax.value_and_grad(self.actor_loss, has_aux=True)(
-                st.actor, critic, st.log_alpha, norms, mb, eps, cfg)
-            updates, actor_opt = self.actor_tx.update(a_grads, st.actor_opt, st.actor)
-            actor = project(optax.apply_updates(st.actor, updates))
-            log_alpha, alpha_opt, alpha_loss = st.log_alpha, st.alpha_opt, jnp.zeros((), jnp.float32)
-            if cfg.autotune_alpha:
-                alpha_loss, g = jax.value_and_grad(algo.temperature_loss)(st.log_alpha, log_prob,
-                                                                            self.target_entropy)
-                updates, alpha_opt = self.alpha_tx.update(g, st.alpha_opt, st.log_alpha)
-                log_alpha = optax.apply_updates(st.log_alpha, updates)
-            return (actor, actor_opt, log_alpha, alpha_opt), {**a_metrics, "alpha_loss": alpha_loss,
-                                                              "actor_grad_norm": optax.tree.norm(a_grads)}
-
-        def skip_actor(st: SACState, critic: Any, mb: dict, eps: jax.Array) -> tuple[tuple, dict]:
-            shapes = jax.eval_shape(actor_step, st, critic, mb, eps)[1]
-            return ((st.actor, st.actor_opt, st.log_alpha, st.alpha_opt),
-                    jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes))
+            # The actor and the temperature move on every actor_every-th step (lax.cond; always when it is 1).
+            do_actor = True if self.actor_every == 1 else (st.steps + 1) % self.actor_every == 0
+            nets, metrics = common.sac_step(self, OPS, common.sac_nets(st), norms, mb, eps_next, eps, do_actor)
+            return st._replace(**nets._asdict()), metrics
 
         n = batch["reward"].shape[0]
         keys = jax.random.split(state.key, n + 1)
@@ -171,27 +145,13 @@ class TD3Learner(_Jitted, common.TD3Base):
         batch = common.prepare_batch(batch)
         state, norms = self.normalize(state, batch)
 
-        def actor_step(st: TD3State, mb: dict) -> tuple[TD3State, jax.Array]:
-            (loss, _), grads = jax.value_and_grad(td3.actor_loss, has_aux=True)(st.actor, st.critic, norms, mb)
-            updates, actor_opt = self.actor_tx.update(grads, st.actor_opt, st.actor)
-            actor = optax.apply_updates(st.actor, updates)
-            return st._replace(actor=actor, actor_opt=actor_opt,
-                               target_actor=polyak.polyak(st.target_actor, actor, cfg.tau),
-                               target_critic=polyak.polyak(st.target_critic, st.critic, cfg.tau)), loss
-
         def step(st: TD3State, xs: tuple) -> tuple[TD3State, dict]:
             mb, key = xs
             eps_next = jax.random.normal(key, mb["action"].shape, jnp.float32)
-            (_, c_metrics), c_grads = jax.value_and_grad(td3.critic_loss, has_aux=True)(
-                st.critic, st.target_actor, st.target_critic, norms, mb, eps_next, cfg)
-            updates, critic_opt = self.critic_tx.update(c_grads, st.critic_opt, st.critic)
-            st = st._replace(critic=optax.apply_updates(st.critic, updates), critic_opt=critic_opt)
-            # Fujimoto's schedule: the actor moves after every policy_delay-th critic step.
+            # Fujimoto's schedule: the actor moves after every policy_delay-th critic step (lax.cond).
             do_actor = ((st.steps + 1) % cfg.policy_delay) == 0
-            st, a_loss = jax.lax.cond(do_actor, actor_step, lambda s, _: (s, jnp.zeros((), jnp.float32)), st, mb)
-            metrics = {**c_metrics, "actor_loss_sum": a_loss, "actor_steps": do_actor.astype(jnp.float32),
-                       "critic_grad_norm": optax.tree.norm(c_grads)}
-            return st._replace(steps=st.steps + 1), metrics
+            nets, metrics = common.td3_step(self, OPS, common.td3_nets(st), norms, mb, eps_next, do_actor)
+            return st._replace(**nets._asdict()), metrics
 
         n = batch["reward"].shape[0]
         keys = jax.random.split(state.key, n + 1)

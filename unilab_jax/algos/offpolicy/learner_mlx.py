@@ -54,7 +54,6 @@ from unilab_jax.algos.offpolicy import image_obs, td3
 from unilab_jax.algos.offpolicy import learner_common as common
 from unilab_jax.algos.offpolicy.sac import Norms, SACState
 from unilab_jax.algos.offpolicy.td3 import TD3State
-from unilab_jax.core import polyak
 from unilab_jax.fields import REPLAY_FIELDS as BATCH_FIELDS
 from unilab_mlx import optim
 from unilab_mlx.state import state_from_numpy, state_to_numpy
@@ -63,6 +62,21 @@ __all__ = ["SACState", "TD3State", "SACFamilyLearner", "TD3Learner", "make_td3_l
            "state_to_numpy", "BATCH_FIELDS"]
 
 XP = shim.get("mlx")
+
+
+def _python_cond(pred: bool, true_fn: Any, false_fn: Any, *operands: Any) -> Any:
+    """``lax.cond`` for a predicate known when the step is traced (each compiled variant takes one branch)."""
+    return true_fn(*operands) if pred else false_fn(*operands)
+
+
+def _zero_actor_metrics(actor_step: Any, *operands: Any) -> dict:
+    """A step that leaves the actor reports zeros for ``learner_common.ACTOR_METRICS``."""
+    return {k: mx.array(0.0, dtype=mx.float32) for k in common.ACTOR_METRICS}
+
+
+# How the MLX learners take gradients and apply updates (the steps' order is learner_common's).
+OPS = common.Ops(value_and_grad=XP.value_and_grad, apply_updates=optim.apply_updates, global_norm=optim.global_norm,
+                 cond=_python_cond, skip_metrics=_zero_actor_metrics)
 
 
 def _as_key(key: Any) -> mx.array:
@@ -127,42 +141,12 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
 
     def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
                  eps: mx.array, do_actor: bool) -> tuple[tuple, dict]:
-        """One gradient step (critics, [actor, temperature,] Polyak), pure in its arguments."""
+        """One gradient step (``learner_common.sac_step``: critics, [actor, temperature,] Polyak), pure in its
+        arguments; ``nets_opt`` is a ``learner_common.SACNets`` as a tuple."""
         self.trace_count += 1
-        cfg, algo = self.config, self.algo
-        project = self._project or (lambda p: p)
-        actor, critic, target_critic, actor_opt, critic_opt, log_alpha, alpha_opt, steps = nets_opt
-        norms = Norms(*norms)
-        mb = self.augment(mb)
-        # 1. critics
-        (_, c_metrics), c_grads = XP.value_and_grad(self.critic_loss, has_aux=True)(
-            critic, target_critic, actor, log_alpha, norms, mb, eps_next, cfg)
-        updates, new_critic_opt = self.critic_tx.update(c_grads, critic_opt, critic)
-        new_critic = project(optim.apply_updates(critic, updates))
-        new_actor, new_actor_opt, new_log_alpha, new_alpha_opt = actor, actor_opt, log_alpha, alpha_opt
-        if do_actor:
-            # 2. actor, against the updated critics
-            (_, (a_metrics, log_prob)), a_grads = XP.value_and_grad(self.actor_loss, has_aux=True)(
-                actor, new_critic, log_alpha, norms, mb, eps, cfg)
-            updates, new_actor_opt = self.actor_tx.update(a_grads, actor_opt, actor)
-            new_actor = project(optim.apply_updates(actor, updates))
-            # 3. temperature
-            alpha_loss = mx.array(0.0, dtype=mx.float32)
-            if cfg.autotune_alpha:
-                alpha_loss, g = XP.value_and_grad(algo.temperature_loss)(log_alpha, log_prob, self.target_entropy)
-                updates, new_alpha_opt = self.alpha_tx.update(g, alpha_opt, log_alpha)
-                new_log_alpha = optim.apply_updates(log_alpha, updates)
-            a_metrics = {**a_metrics, "alpha_loss": alpha_loss, "actor_grad_norm": optim.global_norm(a_grads)}
-        else:
-            a_metrics = {k: mx.array(0.0, dtype=mx.float32) for k in common.ACTOR_METRICS}
-        if self.actor_every > 1:
-            a_metrics["actor_steps"] = mx.array(1.0 if do_actor else 0.0, dtype=mx.float32)
-        # 4. targets
-        new_target = project(polyak.polyak(target_critic, new_critic, cfg.tau))
-        metrics = {**c_metrics, **a_metrics, "alpha": mx.exp(new_log_alpha),
-                   "critic_grad_norm": optim.global_norm(c_grads)}
-        return (new_actor, new_critic, new_target, new_actor_opt, new_critic_opt, new_log_alpha, new_alpha_opt,
-                steps + 1), metrics
+        nets, metrics = common.sac_step(self, OPS, common.SACNets(*nets_opt), Norms(*norms), self.augment(mb),
+                                        eps_next, eps, do_actor)
+        return tuple(nets), metrics
 
     def update(self, state: SACState, batch: Mapping[str, Any],
                noise: Mapping[str, Any] | None = None) -> tuple[SACState, dict]:
@@ -184,8 +168,7 @@ class SACFamilyLearner(_Compiled, common.SACFamilyBase):
                      + (("shift",) if self.image_shape else ()), n)
         keys = XP.random.split(state.key, n + 1)
         step0 = int(state.steps.item()) if self.actor_every > 1 else 0  # the actor's schedule, read once per call
-        carry = (state.actor, state.critic, state.target_critic, state.actor_opt, state.critic_opt,
-                 state.log_alpha, state.alpha_opt, state.steps)
+        carry = tuple(common.sac_nets(state))
         step_metrics = []
         for i in range(n):
             mb = {k: v[i] for k, v in batch.items()}
@@ -224,26 +207,11 @@ class TD3Learner(_Compiled, common.TD3Base):
 
     def _step_fn(self, nets_opt: tuple, norms: tuple, mb: dict, eps_next: mx.array,
                  do_actor: bool) -> tuple[tuple, dict]:
-        """One critic step, then (``do_actor``) the actor step and both Polyak updates."""
+        """One critic step, then (``do_actor``) the actor step and both Polyak updates (``learner_common.td3_step``);
+        ``nets_opt`` is a ``learner_common.TD3Nets`` as a tuple."""
         self.trace_count += 1
-        cfg = self.config
-        actor, critic, target_actor, target_critic, actor_opt, critic_opt, steps = nets_opt
-        norms = Norms(*norms)
-        (_, c_metrics), c_grads = XP.value_and_grad(td3.critic_loss, has_aux=True)(
-            critic, target_actor, target_critic, norms, mb, eps_next, cfg)
-        updates, critic_opt = self.critic_tx.update(c_grads, critic_opt, critic)
-        critic = optim.apply_updates(critic, updates)
-        a_loss = mx.array(0.0, dtype=mx.float32)
-        if do_actor:
-            (a_loss, _), grads = XP.value_and_grad(td3.actor_loss, has_aux=True)(actor, critic, norms, mb)
-            updates, actor_opt = self.actor_tx.update(grads, actor_opt, actor)
-            actor = optim.apply_updates(actor, updates)
-            target_actor = polyak.polyak(target_actor, actor, cfg.tau)
-            target_critic = polyak.polyak(target_critic, critic, cfg.tau)
-        metrics = {**c_metrics, "actor_loss_sum": a_loss,
-                   "actor_steps": mx.array(1.0 if do_actor else 0.0, dtype=mx.float32),
-                   "critic_grad_norm": optim.global_norm(c_grads)}
-        return (actor, critic, target_actor, target_critic, actor_opt, critic_opt, steps + 1), metrics
+        nets, metrics = common.td3_step(self, OPS, common.TD3Nets(*nets_opt), Norms(*norms), mb, eps_next, do_actor)
+        return tuple(nets), metrics
 
     def update(self, state: TD3State, batch: Mapping[str, Any],
                noise: Mapping[str, Any] | None = None) -> tuple[TD3State, dict]:
@@ -263,8 +231,7 @@ class TD3Learner(_Compiled, common.TD3Base):
         _check_noise(noise, ("eps_next",), n)
         keys = XP.random.split(state.key, n + 1)
         step0 = int(state.steps.item())  # the delay schedule is decided on the host (one read per call)
-        carry = (state.actor, state.critic, state.target_actor, state.target_critic, state.actor_opt,
-                 state.critic_opt, state.steps)
+        carry = tuple(common.td3_nets(state))
         step_metrics = []
         for i in range(n):
             mb = {k: v[i] for k, v in batch.items()}

@@ -47,9 +47,10 @@ from unilab_jax.lazy import learner_maker
 SYNC = "async"
 BUFFER = "replay"
 IMAGES = True  # learns from image observations (``image_obs``)
+PRIOR_DATA = True  # Config.prior_dir / prior_fraction: the trainer mixes prior data into every minibatch
 
-__all__ = ["SYNC", "BUFFER", "IMAGES", "Config", "RLPDConfig", "extras", "act", "make_learner", "Norms", "actor_loss",
-           "critic_loss", "critic_noise_shape", "init_params", "temperature_loss"]
+__all__ = ["SYNC", "BUFFER", "IMAGES", "PRIOR_DATA", "Config", "RLPDConfig", "extras", "act", "make_learner", "Norms",
+           "actor_loss", "critic_loss", "critic_noise_shape", "actor_every", "init_params", "temperature_loss"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,15 +69,15 @@ class RLPDConfig(SACConfig):
     prior_dir: str = ""  # replay store of prior data (demonstrations); "" trains on online data only (SAC + ensemble)
     prior_fraction: float = 0.5  # share of each minibatch from the prior data (0.5: symmetric sampling)
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
+    def problems(self) -> list[str]:
+        problems = super().problems()
         if not 1 <= self.subset_size <= self.num_critics:
-            raise ValueError(f"RLPDConfig: need 1 <= subset_size <= num_critics (got {self.subset_size}, "
-                             f"{self.num_critics})")
+            problems.append(f"need 1 <= subset_size <= num_critics (got {self.subset_size}, {self.num_critics})")
         if self.actor_every < 1:
-            raise ValueError(f"RLPDConfig: actor_every must be >= 1, got {self.actor_every}")
+            problems.append(f"actor_every must be >= 1, got {self.actor_every}")
         if not 0.0 <= self.prior_fraction < 1.0:
-            raise ValueError(f"RLPDConfig: prior_fraction must be in [0, 1), got {self.prior_fraction}")
+            problems.append(f"prior_fraction must be in [0, 1), got {self.prior_fraction}")
+        return problems
 
 
 Config = RLPDConfig
@@ -86,6 +87,11 @@ make_learner = learner_maker(__name__)
 def critic_noise_shape(config: RLPDConfig) -> tuple[int, ...]:
     """Shape of the per-step uniform draw the learners pass to ``critic_loss`` (the subset's noise)."""
     return (config.num_critics,)
+
+
+def actor_every(config: RLPDConfig) -> int:
+    """Critic steps per actor (and temperature) step: ``config.actor_every``."""
+    return config.actor_every
 
 
 def init_params(key: Any, obs_dim: int, critic_obs_dim: int, action_dim: int, config: RLPDConfig,

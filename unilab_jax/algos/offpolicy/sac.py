@@ -38,6 +38,15 @@ from typing import Any, NamedTuple
 from unilab_jax import nets
 from unilab_jax import xp as shim
 from unilab_jax.algos.offpolicy import image_obs
+from unilab_jax.algos.offpolicy.base_config import OffPolicyConfig
+from unilab_jax.algos.offpolicy.shared import (  # re-exported: the family's declarations import them from here
+    Norms,
+    critic_input,
+    discounts,
+    ensemble_init,
+    mlp_apply,
+    scalar_q,
+)
 from unilab_jax.core import distributions, normalizer
 from unilab_jax.core import sac_losses as sac_core
 from unilab_jax.lazy import learner_maker
@@ -46,45 +55,7 @@ SYNC = "async"
 BUFFER = "replay"
 LOG_STD_MIN = -5.0
 LOG_STD_MAX = 2.0
-ACTIVATION = "relu"  # hidden activation of actor and critics (the workers' ``act`` must agree)
 IMAGES = True  # learns from image observations (``image_obs``)
-
-
-@dataclasses.dataclass(frozen=True)
-class OffPolicyConfig:
-    """What every off-policy algorithm of this family configures (defaults: SAC's).
-
-    Runtime fields: ``utd`` gradient steps per collected transition; ``updates_per_call`` (U)
-    gradient steps scanned inside one jitted ``update`` (the batch is ``[U, batch_size, ...]``);
-    ``replay_capacity`` transitions in all (split over workers); ``learning_starts`` transitions
-    collected before the first update; ``publish_every`` gradient steps between weight publications.
-    ``horizon``: control steps per worker chunk (the runtime's unit; the trainer and the CLI read it).
-    ``compute_dtype``: the JAX learners' matrix multiplies -- "float32", "bfloat16" (bf16 operands,
-    float32 accumulation, results, master weights, norms, softmax, C51 projection, log-probs, losses and
-    optimizer: ``unilab_jax.xp``'s ``compute_dtype``) or "auto" (``learner_common.AUTO_COMPUTE_DTYPE``
-    per backend: float32 on CPU). The MLX learners compute in float32 and refuse "bfloat16".
-    """
-
-    actor_hidden: tuple[int, ...] = (256, 256)
-    critic_hidden: tuple[int, ...] = (256, 256)
-    actor_learning_rate: float = 3e-4
-    critic_learning_rate: float = 3e-4
-    batch_size: int = 512
-    utd: float = 1.0
-    updates_per_call: int = 8
-    replay_capacity: int = 1_000_000
-    learning_starts: int = 5_000
-    publish_every: int = 8
-    horizon: int = 32  # env steps per worker chunk (bookkeeping only: async workers poll weights every step)
-    gamma: float = 0.99
-    tau: float = 0.005
-    normalize_obs: bool = True
-    max_grad_norm: float = 0.0  # 0 disables gradient clipping
-    weight_decay: float = 0.0  # decoupled (AdamW) when > 0
-    compute_dtype: str = "auto"
-
-    def __post_init__(self) -> None:
-        check_config(self)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,32 +75,15 @@ class SACConfig(OffPolicyConfig):
     feature_dim: int = 50
     image_pad: int = 4
 
+    def problems(self) -> list[str]:
+        problems = super().problems()
+        if self.init_alpha <= 0:
+            problems.append("init_alpha must be positive")
+        return problems + image_obs.check_config(self)
+
 
 Config = SACConfig
 make_learner = learner_maker(__name__)
-
-
-def check_config(cfg: Any) -> None:
-    """Rejects invalid off-policy settings early (before any worker starts)."""
-    problems = []
-    if cfg.batch_size <= 0 or cfg.updates_per_call <= 0 or cfg.publish_every <= 0:
-        problems.append("batch_size, updates_per_call and publish_every must be positive")
-    if cfg.utd <= 0 or cfg.replay_capacity <= 0 or cfg.learning_starts < 0:
-        problems.append("utd and replay_capacity must be positive, learning_starts >= 0")
-    if not 0.0 <= cfg.gamma <= 1.0 or not 0.0 < cfg.tau <= 1.0:
-        problems.append(f"need 0 <= gamma <= 1 and 0 < tau <= 1 (gamma={cfg.gamma}, tau={cfg.tau})")
-    if getattr(cfg, "init_alpha", 1.0) <= 0:
-        problems.append("init_alpha must be positive")
-    if hasattr(cfg, "num_atoms") and (cfg.num_atoms < 2 or not cfg.v_min < cfg.v_max):
-        problems.append(f"need num_atoms >= 2 and v_min < v_max (got {cfg.num_atoms}, [{cfg.v_min}, {cfg.v_max}])")
-    if cfg.compute_dtype not in ("auto", "float32", "bfloat16"):
-        problems.append(f"compute_dtype must be 'auto', 'float32' or 'bfloat16', got {cfg.compute_dtype!r}")
-    if getattr(cfg, "policy_delay", 1) < 1:
-        problems.append("policy_delay must be >= 1")
-    if hasattr(cfg, "feature_dim"):
-        problems.extend(image_obs.check_config(cfg))
-    if problems:
-        raise ValueError(f"{type(cfg).__name__}: " + "; ".join(problems))
 
 
 def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
@@ -157,39 +111,6 @@ class SACState(NamedTuple):
     steps: Any  # gradient steps so far (int32)
 
 
-class Norms(NamedTuple):
-    """Input/reward normalisation used by the losses.
-
-    ``obs``/``critic`` are RunningStats over ``obs`` [D] and ``critic_obs`` [Dc]; ``reward_scale`` is
-    a scalar the rewards are divided by before the critic target (1.0: no reward normalisation).
-    """
-
-    obs: normalizer.RunningStats
-    critic: normalizer.RunningStats
-    reward_scale: Any
-
-
-def mlp_apply(params: list[dict], x: Any) -> Any:
-    """``nets.apply`` with this family's activation; ensemble params give ``[E, B, out]``."""
-    return nets.apply(params, x, ACTIVATION)
-
-
-def ensemble_init(key: Any, sizes: list[int], n: int, xp: shim.Backend, final_scale: float = 1.0,
-                  layer_norm: bool = False) -> list[dict]:
-    """``n`` independent MLPs stacked leaf-wise: weights ``[n, in, out]``, vectors ``[n, 1, out]``.
-
-    ``nets.apply(params, x [B, in])`` then returns ``[n, B, out]`` (broadcast matmul).
-    """
-    keys = xp.random.split(key, n)
-    members = [nets.init(keys[i], sizes, xp, final_scale=final_scale, layer_norm=layer_norm) for i in range(n)]
-
-    def stack(*leaves: Any) -> Any:
-        s = xp.stack(list(leaves))
-        return xp.reshape(s, (n, 1, s.shape[-1])) if len(leaves[0].shape) == 1 else s
-
-    return shim.tree_map(stack, *members)
-
-
 def tanh_gaussian_head(out: Any) -> tuple[Any, Any]:
     """Splits an actor output ``[..., 2A]`` into ``mean [..., A]`` and bounded ``log_std [..., A]``."""
     xp = shim.namespace(out)
@@ -203,12 +124,6 @@ def policy(actor: Any, obs_norm: normalizer.RunningStats, obs: Any,
            actor_apply: Callable = mlp_apply) -> tuple[Any, Any]:
     """Pre-squash Gaussian of the policy. obs [B, D] -> (mean [B, A], log_std [B, A])."""
     return tanh_gaussian_head(actor_apply(actor, normalizer.normalize(obs_norm, obs)))
-
-
-def critic_input(critic_norm: normalizer.RunningStats, critic_obs: Any, action: Any) -> Any:
-    """``concat(normalize(critic_obs), action)``: [B, Dc], [B, A] -> [B, Dc + A]."""
-    xp = shim.namespace(critic_obs, action)
-    return xp.concat([normalizer.normalize(critic_norm, critic_obs), action], axis=-1)
 
 
 def tanh_gaussian_act(weights: dict, obs: Any, noise: Any, deterministic: bool,
@@ -246,17 +161,6 @@ def policy_weights(actor: Any, obs_norm: normalizer.RunningStats) -> dict[str, A
 # Losses (pure; every batch field is [B, ...]: obs, critic_obs, action, reward, next_obs,
 # next_critic_obs, terminated, truncated as float32)
 # ---------------------------------------------------------------------------------------------
-def discounts(mb: dict, gamma: float) -> Any:
-    """``gamma * (1 - terminated)`` [B]: termination cuts the bootstrap, truncation does not."""
-    xp = shim.namespace(mb["terminated"])
-    return gamma * (1.0 - xp.astype(mb["terminated"], xp.float32))
-
-
-def scalar_q(critic: Any, x: Any, critic_apply: Callable = mlp_apply) -> Any:
-    """Twin scalar critics on ``x`` [B, Dc + A] -> Q [E, B]."""
-    return critic_apply(critic, x)[..., 0]
-
-
 def critic_target(target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, mb: dict, eps_next: Any,
                   gamma: float) -> Any:
     """Soft Bellman target [B] (gradient-stopped).

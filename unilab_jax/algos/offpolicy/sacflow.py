@@ -66,10 +66,11 @@ class SACFlowConfig(SACConfig):
     gate_bias: float = 5.0
     target_entropy_per_dim: float = 0.0
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
+    def problems(self) -> list[str]:
+        problems = super().problems()
         if not 1 <= self.flow_steps <= MAX_FLOW_STEPS:
-            raise ValueError(f"SACFlowConfig: flow_steps must be in [1, {MAX_FLOW_STEPS}], got {self.flow_steps}")
+            problems.append(f"flow_steps must be in [1, {MAX_FLOW_STEPS}], got {self.flow_steps}")
+        return problems
 
 
 Config = SACFlowConfig

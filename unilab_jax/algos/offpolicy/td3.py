@@ -25,16 +25,8 @@ from typing import Any, NamedTuple
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
-from unilab_jax.algos.offpolicy.sac import (
-    ACTIVATION,
-    Norms,
-    OffPolicyConfig,
-    critic_input,
-    discounts,
-    ensemble_init,
-    extras,
-    mlp_apply,
-)
+from unilab_jax.algos.offpolicy.base_config import OffPolicyConfig
+from unilab_jax.algos.offpolicy.shared import ACTIVATION, Norms, critic_input, discounts, ensemble_init, mlp_apply
 from unilab_jax.core import normalizer
 from unilab_jax.core import td3_losses as td3_core
 from unilab_jax.lazy import learner_maker
@@ -48,7 +40,7 @@ __all__ = ["SYNC", "BUFFER", "ACTIVATION", "Config", "TD3Config", "extras", "act
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config(OffPolicyConfig):
-    """TD3 hyperparameters (Fujimoto et al. defaults): the off-policy fields (``sac.OffPolicyConfig``)
+    """TD3 hyperparameters (Fujimoto et al. defaults): the off-policy fields (``base_config.OffPolicyConfig``)
     plus exploration, target smoothing and the policy delay."""
 
     explore_std: float = 0.1  # std of the exploration noise added in the workers
@@ -56,9 +48,20 @@ class TD3Config(OffPolicyConfig):
     noise_clip: float = 0.5
     policy_delay: int = 2  # critic steps per actor (and target) step
 
+    def problems(self) -> list[str]:
+        problems = super().problems()
+        if self.policy_delay < 1:
+            problems.append("policy_delay must be >= 1")
+        return problems
+
 
 Config = TD3Config
 make_learner = learner_maker(__name__)
+
+
+def extras(action_dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
+    """TD3 writes nothing per transition besides the task's fields."""
+    return {}
 
 
 class TD3State(NamedTuple):
