@@ -3,26 +3,23 @@
 ``run_episodes`` steps a task's envs through one episode each with a deterministic ``act`` (the trainer's
 evaluations, ``python -m unilab_jax.play``); ``SceneRenderer`` renders one env through the task's
 ``render_scene`` hook; ``AsyncEvaluator`` and ``ClipRecorder`` run evaluations and ``--video_every`` clips
-in background threads on weight snapshots, so training is never held up. ``MUJOCO_GL`` is chosen at import,
-before anything imports mujoco (``robots.gl.prefer_headless``).
+in background threads on weight snapshots, so training is never held up. Importing this module chooses no
+``MUJOCO_GL``: the processes that render choose it before mujoco is imported (``python -m unilab_jax.play``
+at its start, the experiments' ``--video_every`` check; ``robots.gl.prefer_headless``).
 """
 
 from __future__ import annotations
 
-from unilab_jax.robots.gl import prefer_headless
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
 
-prefer_headless()  # before anything imports mujoco
+import numpy as np
 
-import logging  # noqa: E402
-import os  # noqa: E402
-import threading  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from typing import Any  # noqa: E402
-
-import numpy as np  # noqa: E402
-
-from unilab_jax.runtime.ring import StopRequested  # noqa: E402
+from unilab_jax.runtime.ring import StopRequested
 
 log = logging.getLogger(__name__)
 

@@ -37,11 +37,21 @@ from typing import Any
 
 import numpy as np
 
+import tasks
 from unilab_jax import algos, nets
+from unilab_jax import xp as shim
+from unilab_jax.checkpoint import Checkpointer
 from unilab_jax.fields import prior_fields, replay_fields
 from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
+from unilab_jax.runtime.buffers import transition_layout
+from unilab_jax.runtime.pool import WorkerPool
+from unilab_jax.runtime.prior import load_prior
+from unilab_jax.runtime.replay_store import ReplayStore
 from unilab_jax.runtime.ring import StopRequested
-from unilab_jax.training.evaluation import AsyncEvaluator
+from unilab_jax.runtime.spawn import cpu_placement
+from unilab_jax.runtime.weights import WeightPublisher
+from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
+from unilab_jax.training.evaluation import AsyncEvaluator, ClipRecorder, deterministic_policy, run_episodes
 from unilab_jax.training.sources import ReplaySource, TrajectorySource
 from unilab_jax.training.threads import LearnerThread, Prefetcher, stop_on_signals
 from unilab_jax.xp import tree_leaves
@@ -96,7 +106,6 @@ class RunConfig:
 
 def _learner_platform(platform: str) -> Any:
     """Backend used to convert numpy batches for the learner."""
-    from unilab_jax import xp as shim
 
     return shim.get(platform)
 
@@ -114,7 +123,6 @@ class Trainer:
         start when launched from the CLI, so compilation and worker start-up are included).
         ``eval_overrides``: task overrides added for evaluations only (e.g. robot tasks evaluating on
         the robots that answer, ``min_envs``)."""
-        import tasks
 
         self.t0 = time.time() if start_time is None else start_time
 
@@ -127,7 +135,7 @@ class Trainer:
         self.learner = algos.make_learner(algo_module, run.platform, algo_config, self.spec)
         self.parallel = None  # the DataParallel learner of --devices > 1
         if run.devices != "1":
-            from unilab_jax.training import sharding
+            from unilab_jax.training import sharding  # imports jax: only when asked for (MLX-only installs)
 
             self.parallel = sharding.for_run(self.learner, run, algo_config, algo_module.BUFFER)
             self.learner = self.parallel or self.learner
@@ -142,7 +150,6 @@ class Trainer:
         state = self.learner.init(self.xp.random.key(self.run.seed))
         counters = {"env_steps": 0, "updates": 0, "version": 0, "episodes": 0}
         if self.run.resume:
-            from unilab_jax.checkpoint import Checkpointer
 
             ckpt = Checkpointer(self.ckpt_dir)
             if ckpt.latest_step() is None:
@@ -176,7 +183,7 @@ class Trainer:
             if mode == "on":
                 raise ValueError("replay_on_device=on needs the jax platform and no replay_dir")
             return None
-        import jax
+        import jax  # here only: an MLX-only install never imports it
 
         if mode == "auto" and jax.default_backend() == "cpu":
             return None
@@ -186,7 +193,6 @@ class Trainer:
 
     def _row_layout(self, names: tuple[str, ...]) -> dict[str, Any]:
         """The (shape, dtype) of the transition fields ``names`` for this run's task and algorithm."""
-        from unilab_jax.runtime.buffers import transition_layout
 
         fields = transition_layout(self.spec, self.algo.extras(self.spec.action_dim))
         return {k: fields[k] for k in names}
@@ -200,7 +206,6 @@ class Trainer:
         run = self.run
         if not run.replay_dir:
             return None
-        from unilab_jax.runtime.replay_store import ReplayStore
 
         store = ReplayStore(run.replay_dir, self._row_layout(replay_fields(self.spec)),
                             chunk_rows=run.replay_chunk_rows, max_bytes=int(run.replay_disk_gb * 1e9),
@@ -226,7 +231,6 @@ class Trainer:
         directory = self.config.prior_dir if algos.info(self.algo).prior_data else ""
         if not directory:
             return None
-        from unilab_jax.runtime.prior import load_prior
 
         prior = load_prior(directory, self._row_layout(prior_fields(self.spec)))
         log.info("prior data: %d transitions from %s", len(prior["reward"]), directory)
@@ -237,8 +241,6 @@ class Trainer:
         """Deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the
         task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
         before it ends."""
-        import tasks
-        from unilab_jax.training.evaluation import deterministic_policy, run_episodes
 
         task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
                           overrides=self.eval_overrides)
@@ -255,11 +257,6 @@ class Trainer:
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
-        from unilab_jax.checkpoint import Checkpointer
-        from unilab_jax.runtime.pool import WorkerPool
-        from unilab_jax.runtime.spawn import cpu_placement
-        from unilab_jax.runtime.weights import WeightPublisher
-        from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
 
         run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
         evaluator = AsyncEvaluator(self, stop)
@@ -268,7 +265,6 @@ class Trainer:
         weights = nets.to_numpy(self.learner.weights(state))
         clips = None
         if run.video_every:
-            from unilab_jax.training.evaluation import ClipRecorder
 
             clips = ClipRecorder(self, run.video_every, counters["env_steps"])
         replay = self.algo.BUFFER == "replay"
@@ -284,7 +280,7 @@ class Trainer:
                            if replay else 0,
                            max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
         if run.ray_address:
-            from unilab_jax.runtime.ray_pool import RayPool
+            from unilab_jax.runtime.ray_pool import RayPool  # Ray is imported only for --ray_address
 
             pool = RayPool(run.ray_address, workers_per_host=run.ray_workers_per_host or None, **pool_kwargs)
         else:
