@@ -18,7 +18,7 @@ NAMES = ["cartpole_balance", "go1_joystick_flat", "go2_joystick_flat", "g1_walk_
 _SCRIPT = """
 import json, sys
 import numpy as np
-from unilab_jax.training.evaluation import SceneRenderer  # picks MUJOCO_GL=egl before mujoco is imported
+from unilab_jax.apps import play  # picks MUJOCO_GL=egl before mujoco is imported
 import tasks
 
 out = {}
@@ -31,7 +31,7 @@ for name in sys.argv[1:]:
         task.step(action)
     frames = []
     for env in (0, 1):
-        renderer = SceneRenderer(task, 96, 72, env=env)
+        renderer = play.SceneRenderer(task, 96, 72, env=env)
         frames.append(renderer.frame())
         renderer.close()
     task.close()
