@@ -23,10 +23,12 @@ def _script(name: str, *args: str, timeout: float) -> subprocess.CompletedProces
 def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     """The plain command: images (the front camera's frames rendered by the sim: server) + proprioception, 20
     demonstrations recorded with images, RLPD with the image encoder. 800 env steps (learning starts at 300:
-    ~250 gradient steps at the image recipe's utd 0.5) exercise what 2000 did at 40% of the learner time; the
-    image learner's gradient steps are this test's cost (2000 steps: 135-150 s on the idle 2-core VM)."""
+    ~250 gradient steps at the image recipe's utd 0.5) exercise what 2000 did at 40% of the learner time, and 4
+    gradient steps per call, not the recipe's 16: on the CPU the image learner unrolls its steps, so the first
+    call's compile grows with them (16: 47 s, 4: 14 s on the 2-core VM; the whole command 81 s -> 59 s)."""
     logdir = tmp_path / "run"
-    out = _script("rlpd_franka_peg.py", "--speed=20", "--total_steps=800", f"--logdir={logdir}", timeout=500)
+    out = _script("rlpd_franka_peg.py", "--speed=20", "--total_steps=800", "--config", "updates_per_call=4",
+                  f"--logdir={logdir}", timeout=500)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "demonstrations: 20 episodes (" in out.stdout
     assert "image observation 32x32x9 uint8 (front x 3 frames)" in out.stdout
