@@ -116,8 +116,8 @@ def test_one_update_close_to_float32(name):
     def grad():
         # Jitted, the inputs passed as arguments (not closed over: XLA would constant-fold the products): one
         # compilation instead of hundreds of op-by-op ones (~20 s on the 2-core VM). A fresh function per call, so
-        # each compute_dtype block traces its own program; same gradients as the eager call (measured: relative
-        # difference 2.19e-3 both ways).
+        # each compute_dtype block traces its own program; the same bf16-vs-float32 difference as the eager calls
+        # gave (measured, jitted / eager: FastSAC 2.1900e-3 / 2.1897e-3, FlashSAC 1.3665e-2 / 1.3664e-2).
         def flat(critic, target_critic, actor, log_alpha, norms, mb, eps):
             g, _ = jax.grad(mod.critic_loss, has_aux=True)(critic, target_critic, actor, log_alpha, norms, mb, eps, cfg)
             return jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree_util.tree_leaves(g)])
