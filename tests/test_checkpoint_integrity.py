@@ -170,3 +170,19 @@ def test_resume_from_a_damaged_checkpoint_exits_2(tmp_path):
     assert out.returncode == 2, out.stderr[-3000:]
     assert f"{ckpt_dir / '256' / largest} differs from the SHA-256" in out.stderr
     assert "start the run again without --resume" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_resume_with_a_damaged_replay_index_exits_2(tmp_path):
+    from unilab_jax.runtime.replay_store import ReplayStore
+
+    shutil.copytree(os.path.join(ROOT, "tests", "fixtures", "checkpoints", "sac"), tmp_path / "run" / "checkpoints")
+    replay = tmp_path / "replay"
+    ReplayStore(str(replay), {"x": ((2,), np.dtype(np.float32))}).close()
+    index = replay / "index.json"
+    index.write_bytes(index.read_bytes()[:100])  # the case: truncated to 100 bytes
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "sac_cartpole.py"), "--resume",
+                          "--total_steps=1024", *FIXTURE_FLAGS, f"--replay_dir={replay}",
+                          f"--logdir={tmp_path / 'run'}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2, out.stderr[-3000:]
+    assert f"replay store index {index} is damaged: not readable JSON" in out.stderr
+    assert "--resume again" in out.stderr and "Traceback" not in out.stderr

@@ -272,7 +272,8 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
            errors: tuple[type[Exception], ...] = ()) -> None:
     """The absl ``main`` of every experiment launcher: quiet logging unless ``-v`` is given (orbax logs every
     save at INFO), no stray arguments, ``validate()`` -- a flag or config error (or one of ``errors``) exits
-    with code 2 and a message before anything starts -- then ``train(validate())``."""
+    with code 2 and a message before anything starts -- then ``train(validate())``, where a damaged checkpoint
+    or replay index (found when it is opened, before training) exits with code 2 and its message too."""
 
     def main(argv: list[str]) -> None:
         if not any(a.startswith(("-v", "--v")) for a in sys.argv[1:]):
@@ -286,7 +287,14 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
         except (FlagError, ConfigError, *errors) as e:
             print(f"error: {e}", file=sys.stderr)
             sys.exit(2)
-        train(validated)
+        from unilab_jax.checkpoint import CheckpointCorruptError
+        from unilab_jax.runtime.replay_store import StoreCorruptError
+
+        try:
+            train(validated)
+        except (CheckpointCorruptError, StoreCorruptError) as e:  # damaged saved data, found before training
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
         from unilab_jax.training.threads import learner_busy, stopped_by_signal
 
         if learner_busy() or stopped_by_signal():  # a stopped run: saved and closed, leave without teardown
