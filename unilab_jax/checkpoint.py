@@ -288,9 +288,10 @@ class Checkpointer:
 # -- the numpy-only format -------------------------------------------------------------------------
 # <directory>/<step>/state.npz   every leaf, keyed by its path ("params/actor/0/w")
 # <directory>/<step>/meta.json   the JSON record passed to save
-# <directory>/<step>/unilab_checkpoint.json   {"format": "npz", "version": 1, "dtypes": {path: name}},
-#                                written last; all three are fsynced in <step>.unilab-tmp-<pid>-<hex>,
-#                                which is then renamed to <step> (atomic on POSIX) and the parent fsynced.
+# <directory>/<step>/unilab_checkpoint.json   {"format": "npz", "version": 1, "dtypes": {path: name}}
+# <directory>/<step>/unilab_digests.json      size and SHA-256 of the three above (as in orbax steps), written
+#                                last; all four are fsynced in <step>.unilab-tmp-<pid>-<hex>, which is then
+#                                renamed to <step> (atomic on POSIX) and the parent fsynced.
 # A folder whose name is not a plain integer (a temp folder left by a crash) is never a step.
 
 
