@@ -196,6 +196,15 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError("--utd_window needs an off-policy algorithm and --utd_mode=hold")
     if FLAGS.replay_disk_gb <= 0 or FLAGS.replay_chunk_rows < 0:
         raise FlagError("--replay_disk_gb must be positive and --replay_chunk_rows >= 0")
+    if module.BUFFER == "replay" and not FLAGS.ray_address:  # the trainer's split of replay_capacity (Ray: per host)
+        from unilab_jax.runtime.buffers import ReplayBuffer
+
+        rows = FLAGS.num_workers * ReplayBuffer.worker_rows(max(config.replay_capacity // FLAGS.num_workers, 1),
+                                                            FLAGS.envs_per_worker)
+        if max(config.learning_starts, config.batch_size) > rows:
+            raise FlagError(f"learning_starts/batch_size ({max(config.learning_starts, config.batch_size)}) exceed "
+                            f"the replay capacity ({rows} transitions over {FLAGS.num_workers} workers): raise "
+                            "replay_capacity")
     batch = config.horizon * FLAGS.num_workers * FLAGS.envs_per_worker
     if module.BUFFER == "trajectory" and batch < config.num_minibatches:
         raise FlagError(f"a batch of {batch} transitions cannot make {config.num_minibatches} minibatches")
@@ -315,7 +324,12 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
     def train(parts: tuple) -> None:
         from unilab_jax.training.trainer import Trainer
 
-        summary = Trainer(*parts, start_time=PROCESS_START).train()
+        try:  # builds a probe of the task and the learner: a task config they refuse is a bad input too
+            trainer = Trainer(*parts, start_time=PROCESS_START)
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
+        summary = trainer.train()
         print(json.dumps(summary, indent=2))
         print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
         print(f"checkpoints: {summary['checkpoints']}")
