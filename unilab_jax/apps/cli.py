@@ -315,6 +315,16 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
     app.run(main)
 
 
+def new_trainer(cls: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """``cls(*args, **kwargs)``, a trainer: it builds a probe of the task and the learner, before any worker starts,
+    so a ValueError there (a task config the task refuses) exits with code 2 and its message."""
+    try:
+        return cls(*args, **kwargs)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+
+
 def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None,
                    task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000,
                    sized_for: sizing.SizedFor | None = None) -> None:
@@ -324,12 +334,7 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
     def train(parts: tuple) -> None:
         from unilab_jax.training.trainer import Trainer
 
-        try:  # builds a probe of the task and the learner: a task config they refuse is a bad input too
-            trainer = Trainer(*parts, start_time=PROCESS_START)
-        except ValueError as e:
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(2)
-        summary = trainer.train()
+        summary = new_trainer(Trainer, *parts, start_time=PROCESS_START).train()
         print(json.dumps(summary, indent=2))
         print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
         print(f"checkpoints: {summary['checkpoints']}")
