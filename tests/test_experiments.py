@@ -83,6 +83,7 @@ def test_invalid_flags_fail_before_workers_start(tmp_path, flag, message):
     ("ppo_cartpole.py", "--config=actor_hidden=(64, -1)", "hidden layer sizes must be positive"),
     ("ppo_cartpole.py", "--task_config=ctrl_dt=-inf", "config key 'ctrl_dt': must be a finite number"),
     ("ppo_cartpole.py", "--task_config=dr_motor_strength=(1.0, 1e999)", "'dr_motor_strength': must be a finite"),
+    ("ppo_cartpole.py", "--task_config=episode_length=-5", "episode_length must be positive, got -5"),
     ("ppo_cartpole.py", "--task_config=ctrl_dt=-0.02", "ctrl_dt -0.02 must be a multiple of sim_dt"),  # the task's
     ("sac_cartpole.py", "--config=replay_capacity=10", "exceed the replay capacity (128 transitions over 2 workers)"),
 ])

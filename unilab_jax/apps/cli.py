@@ -176,6 +176,9 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
     task_config = apply_overrides(tasks.default_config(task_name), task_overrides)  # rejects unknown keys
     task_overrides = {k: getattr(task_config, k) for k in task_overrides}
+    length = getattr(task_config, "episode_length", None)  # every task's; evaluations play whole episodes
+    if isinstance(length, int) and length < 1:
+        raise FlagError(f"--task_config episode_length must be positive, got {length}")
     try:  # the algorithm's own flag checks (platforms, task kind)
         contract.hooks(module).check_run(FLAGS.platform, task_config, config)
     except ValueError as e:
