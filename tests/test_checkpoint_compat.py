@@ -14,35 +14,12 @@ commit restored from it, keyed by its path. A restore today must give the same t
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import pathlib
-import shutil
-
 import numpy as np
 import pytest
+from ckpt_helpers import FIXTURES
+from ckpt_helpers import resume_fixture as restore
 
-from unilab_jax import algos
 from unilab_jax import xp as shim
-from unilab_jax.config import apply_overrides
-from unilab_jax.training.trainer import RunConfig, Trainer
-
-FIXTURES = pathlib.Path(__file__).parent / "fixtures" / "checkpoints"
-
-
-def restore(algo: str, logdir: pathlib.Path):
-    """The state ``--resume`` restores from ``logdir`` (a copy of the fixture) and its counters."""
-    shutil.copytree(FIXTURES / algo, logdir / "checkpoints")
-    meta_run = {f.name for f in dataclasses.fields(RunConfig)}
-    step = sorted((logdir / "checkpoints").iterdir())[0]
-    meta = json.loads((step / "meta" / "metadata").read_text())
-    run = RunConfig(**{**{k: v for k, v in meta["run"].items() if k in meta_run}, "logdir": str(logdir),
-                       "resume": True})
-    module = algos.get(algo)
-    trainer = Trainer(run, module, apply_overrides(module.Config(), meta["config"]), {})
-    state, counters = trainer._init_state()
-    trainer.logger.close()
-    return state, counters, meta
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])

@@ -37,7 +37,8 @@ def test_npz_round_trip_is_bitwise(tmp_path):
     ck.save(10, state, {"counters": {"env_steps": 10}})
     ck.wait()
     assert ck.latest_step() == 10 and ck.step_format(10) == "npz"
-    assert sorted(os.listdir(tmp_path / "ck" / "10")) == ["meta.json", "state.npz", "unilab_checkpoint.json"]
+    assert sorted(os.listdir(tmp_path / "ck" / "10")) == ["meta.json", "state.npz", "unilab_checkpoint.json",
+                                                        "unilab_digests.json"]
     restored, meta = ck.restore(_state([3, 8, 2], seed=1), _to_jax)
     ck.close()
     assert meta == {"counters": {"env_steps": 10}}

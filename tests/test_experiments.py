@@ -74,6 +74,27 @@ def test_invalid_flags_fail_before_workers_start(tmp_path, flag, message):
     assert "Traceback" not in out.stderr
 
 
+@pytest.mark.parametrize("script,flag,message", [
+    ("sac_cartpole.py", "--config=batch_size=-5", "SACConfig: batch_size, updates_per_call and publish_every must"),
+    ("ppo_cartpole.py", "--config=gamma=2.5", "PPOConfig: need 0 <= gamma <= 1"),
+    ("sac_cartpole.py", "--config=gamma=2.5", "SACConfig: need 0 <= gamma <= 1"),
+    ("sac_cartpole.py", "--config=utd=1e999", "config key 'utd': must be a finite number, got inf"),
+    ("sac_cartpole.py", "--config=tau=nan", "config key 'tau': must be a finite number, got 'nan'"),
+    ("ppo_cartpole.py", "--config=actor_hidden=(64, -1)", "hidden layer sizes must be positive"),
+    ("ppo_cartpole.py", "--task_config=ctrl_dt=-inf", "config key 'ctrl_dt': must be a finite number"),
+    ("ppo_cartpole.py", "--task_config=dr_motor_strength=(1.0, 1e999)", "'dr_motor_strength': must be a finite"),
+    ("ppo_cartpole.py", "--task_config=episode_length=-5", "episode_length must be positive, got -5"),
+    ("ppo_cartpole.py", "--task_config=ctrl_dt=-0.02", "ctrl_dt -0.02 must be a multiple of sim_dt"),  # the task's
+    ("sac_cartpole.py", "--config=replay_capacity=10", "exceed the replay capacity (128 transitions over 2 workers)"),
+])
+def test_bad_config_values_exit_2(tmp_path, script, flag, message):
+    # Issue 34: every config validation (the algorithm config's own, non-finite numbers) is exit 2 and a message.
+    out = _run(script, flag, f"--logdir={tmp_path / 'x'}", timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert message in out.stderr
+    assert "Traceback" not in out.stderr
+
+
 def test_resume_without_checkpoint_is_an_error(tmp_path):
     out = _run("ppo_cartpole.py", "--resume", f"--logdir={tmp_path / 'empty'}", timeout=120)
     assert out.returncode == 2 and "no checkpoints" in out.stderr

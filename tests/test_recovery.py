@@ -70,6 +70,7 @@ def test_serial_resume_is_exact(tmp_path):
     assert ck_a.all_steps() == ck_b.all_steps() == [1_024, 1_824]
     states = {}
     for step in (1_024, 1_824):
+        assert ck_a.verify(step) and ck_b.verify(step)  # the trainer's saves carry digests (issue 34), resumed too
         _, va, ma = ck_a.read(step)
         _, vb, mb = ck_b.read(step)
         assert sorted(va) == sorted(vb) and any(k.startswith("actor_opt/") for k in va) and "key" in va

@@ -9,11 +9,21 @@ different network.
 jax installs write orbax checkpoints; an MLX-only install (no orbax, which needs jax) writes the
 ``npz`` format below: one ``state.npz`` of path -> array plus ``meta.json`` per step, written
 crash-safely. Either install restores either format (orbax steps need orbax), per step folder.
+
+Damage is never restored silently: every step folder carries ``unilab_digests.json``, the size and SHA-256 of
+each file the save wrote (npz: written before the folder is renamed into place; orbax: once orbax has committed
+the step, at the next save, ``wait`` or ``close``). :meth:`Checkpointer.read` checks them before loading and
+raises :class:`CheckpointCorruptError` naming the damaged file and the previous checkpoint to go back to; a
+step without digests (written before they existed, or a process killed between orbax's commit and the digests)
+restores as before, with a warning that it is unverified. :meth:`Checkpointer.remove_unfinished_saves` deletes
+the temporary folders of saves that never finished (orbax's ``*.orbax-checkpoint-tmp`` after a ``kill -9``).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
 import os
 import shutil
 import uuid
@@ -29,10 +39,19 @@ FORMATS = ("orbax", "npz")
 FORMAT_ENV = "UNILAB_CHECKPOINT_FORMAT"  # forces the format new steps are written in
 NPZ_STATE, NPZ_META, NPZ_MARKER = "state.npz", "meta.json", "unilab_checkpoint.json"
 _TMP_TAG, _DEL_TAG = ".unilab-tmp-", ".unilab-del-"
+DIGESTS = "unilab_digests.json"  # {"version": 1, "algorithm": "sha256", "files": {path: {"bytes", "sha256"}}, "self"}
+ORBAX_TMP = ".orbax-checkpoint-tmp"  # orbax's temporary step folders (renamed to <step> once committed)
+
+log = logging.getLogger(__name__)
 
 
 class CheckpointMismatchError(ValueError):
     """The checkpoint's leaves differ from the state they are restored into."""
+
+
+class CheckpointCorruptError(ValueError):
+    """A checkpoint file is missing, differs from the digest recorded when it was saved, or cannot be read; the
+    message names the file and the previous checkpoint to resume from."""
 
 
 def to_saveable(tree: Any) -> Any:
@@ -99,6 +118,7 @@ class Checkpointer:
         self.format = fmt
         self._mngr = None
         self._ocp = None
+        self._unsealed: list[int] = []  # orbax steps saved by this object whose digests are not written yet
         os.makedirs(self.directory, exist_ok=True)
         _remove_dead_temp_dirs(self.directory)
         if fmt == "orbax":
@@ -136,10 +156,12 @@ class Checkpointer:
         if self._mngr is not None:
             ocp = self._ocp
             self._mngr.wait_until_finished()
+            self._seal()
             if step in self._mngr.all_steps():
                 self._mngr.delete(step)
             self._mngr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(to_saveable(state)),
                                                           meta=ocp.args.JsonSave(meta)), force=True)
+            self._unsealed.append(int(step))
             return
         _save_npz(self.directory, int(step), to_saveable(state), meta)
         for old in _complete_steps(self.directory)[:-self.max_to_keep] if self.max_to_keep else []:
@@ -151,9 +173,20 @@ class Checkpointer:
         step = self.latest_step() if step is None else int(step)
         if step is None:
             raise FileNotFoundError(f"no checkpoint under {self.directory}")
-        if self.step_format(step) == "npz":
-            values, meta = _load_npz(os.path.join(self.directory, str(step)))
-            return step, values, meta
+        fmt = self.step_format(step)
+        self.wait()  # an in-flight orbax save of this object: committed and sealed before it is read
+        self.verify(step)
+        try:
+            if fmt == "npz":
+                values, meta = _load_npz(os.path.join(self.directory, str(step)))
+                return step, values, meta
+            return self._read_orbax(step)
+        except (CheckpointCorruptError, ImportError):
+            raise
+        except Exception as e:  # a damaged step without digests: the library's error, with the folder named
+            raise CheckpointCorruptError(self._damaged(step, "", f"cannot be read ({type(e).__name__}: {e})")) from e
+
+    def _read_orbax(self, step: int) -> tuple[int, dict[str, np.ndarray], dict[str, Any]]:
         if self._mngr is None:
             try:
                 ocp = _import_orbax()
@@ -190,22 +223,75 @@ class Checkpointer:
             values = {p: v for p, v in values.items() if p.split("/", 1)[0] in names}
         return fill(template, values, convert), meta
 
+    # -- integrity ---------------------------------------------------------------------------------
+    def verify(self, step: int) -> bool:
+        """Checks every file of ``step`` against the digests recorded at save time: True when they match,
+        False (and a warning) when the step has none (an older checkpoint); :class:`CheckpointCorruptError`
+        naming the file otherwise."""
+        path = os.path.join(self.directory, str(step))
+        problem = _check_digests(path)
+        if problem is None:
+            return True
+        if problem == "":
+            log.warning("checkpoint %s has no %s (saved before digests were recorded, or killed right after "
+                        "orbax's commit): restored unverified", path, DIGESTS)
+            return False
+        name, what = problem
+        raise CheckpointCorruptError(self._damaged(step, name, what))
+
+    def _damaged(self, step: int, name: str, what: str) -> str:
+        """The error message for a damaged ``step``: the file, and what to do (the previous checkpoint)."""
+        path = os.path.join(self.directory, str(step))
+        earlier = [s for s in self.all_steps() if s < step]
+        where = f"{os.path.join(path, name)} " if name else f"checkpoint {path} "
+        advice = (f"To continue from the previous checkpoint, step {earlier[-1]}, move {path} out of "
+                  f"{self.directory} and --resume again" if earlier else
+                  f"No earlier checkpoint is left under {self.directory}: move {path} away and start the run "
+                  "again without --resume")
+        return f"checkpoint of step {step} is damaged: {where}{what}; it is not restored. {advice}."
+
+    def remove_unfinished_saves(self) -> list[str]:
+        """Deletes temporary folders of saves that never finished: orbax's ``<step>.orbax-checkpoint-tmp*`` (a
+        process killed mid-save) and npz ones of dead processes. Call it only where no other process saves into
+        this folder (``--resume``: the run that wrote it is gone). Returns the names removed."""
+        self.wait()
+        _remove_dead_temp_dirs(self.directory)
+        removed = sorted(n for n in os.listdir(self.directory) if ORBAX_TMP in n)
+        for name in removed:
+            path = os.path.join(self.directory, name)
+            if os.path.isdir(path) and not os.path.islink(path):
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                os.unlink(path)
+        return removed
+
+    def _seal(self) -> None:
+        """Writes the digests of the orbax steps this object saved and orbax has committed since."""
+        for step in self._unsealed:
+            path = os.path.join(self.directory, str(step))
+            if os.path.isdir(path) and not os.path.exists(os.path.join(path, DIGESTS)):
+                _write_digests(path)
+        self._unsealed.clear()
+
     def wait(self) -> None:
         if self._mngr is not None:
             self._mngr.wait_until_finished()
+            self._seal()
 
     def close(self) -> None:
         if self._mngr is not None:
             self._mngr.wait_until_finished()
+            self._seal()
             self._mngr.close()
 
 
 # -- the numpy-only format -------------------------------------------------------------------------
 # <directory>/<step>/state.npz   every leaf, keyed by its path ("params/actor/0/w")
 # <directory>/<step>/meta.json   the JSON record passed to save
-# <directory>/<step>/unilab_checkpoint.json   {"format": "npz", "version": 1, "dtypes": {path: name}},
-#                                written last; all three are fsynced in <step>.unilab-tmp-<pid>-<hex>,
-#                                which is then renamed to <step> (atomic on POSIX) and the parent fsynced.
+# <directory>/<step>/unilab_checkpoint.json   {"format": "npz", "version": 1, "dtypes": {path: name}}
+# <directory>/<step>/unilab_digests.json      size and SHA-256 of the three above (as in orbax steps), written
+#                                last; all four are fsynced in <step>.unilab-tmp-<pid>-<hex>, which is then
+#                                renamed to <step> (atomic on POSIX) and the parent fsynced.
 # A folder whose name is not a plain integer (a temp folder left by a crash) is never a step.
 
 
@@ -293,6 +379,7 @@ def _save_npz(directory: str, step: int, saveable: Any, meta: dict[str, Any]) ->
                 f.write(text)
                 f.flush()
                 os.fsync(f.fileno())
+        _write_digests(tmp)
         _fsync_path(tmp, directory=True)
         final = os.path.join(directory, str(step))
         if os.path.exists(final):  # re-saving a step replaces it, as orbax's force=True does
@@ -322,3 +409,68 @@ def _load_npz(path: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     with open(os.path.join(path, NPZ_META)) as f:
         meta = json.load(f)
     return values, meta
+
+
+# -- digests ---------------------------------------------------------------------------------------
+def _sha256(path: str) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _files(path: str) -> list[str]:
+    """Every regular file under the step folder ``path`` (relative, sorted), the digest files excluded."""
+    out = []
+    for root, dirs, names in os.walk(path):
+        dirs.sort()
+        for name in names:
+            rel = os.path.relpath(os.path.join(root, name), path)
+            if rel not in (DIGESTS, DIGESTS + ".tmp"):
+                out.append(rel)
+    return sorted(out)
+
+
+def _self_digest(files: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(files, sort_keys=True).encode()).hexdigest()
+
+
+def _write_digests(path: str) -> None:
+    """``path/DIGESTS``: size and SHA-256 of every file of the step folder ``path``, written crash-safely."""
+    files = {rel: {"bytes": os.path.getsize(os.path.join(path, rel)), "sha256": _sha256(os.path.join(path, rel))}
+             for rel in _files(path)}
+    doc = {"version": 1, "algorithm": "sha256", "files": files, "self": _self_digest(files)}
+    tmp = os.path.join(path, DIGESTS + ".tmp")
+    with open(tmp, "w") as f:
+        json.dump(doc, f, indent=1, sort_keys=True)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, os.path.join(path, DIGESTS))
+    _fsync_path(path, directory=True)
+
+
+def _check_digests(path: str) -> tuple[str, str] | str | None:
+    """None: every file matches its digest; ``""``: no digests; else (file, what is wrong with it)."""
+    record = os.path.join(path, DIGESTS)
+    if not os.path.isfile(record):
+        return ""
+    try:
+        with open(record, "rb") as f:
+            doc = json.loads(f.read().decode("utf-8"))
+        files = doc["files"]
+        ok = doc.get("algorithm") == "sha256" and doc["self"] == _self_digest(files)
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        return DIGESTS, f"(the digests recorded at save time) cannot be read ({type(e).__name__}: {e})"
+    if not ok:
+        return DIGESTS, "(the digests recorded at save time) does not match its own checksum"
+    for rel, want in sorted(files.items()):
+        full = os.path.join(path, rel)
+        if not os.path.isfile(full):
+            return rel, "is missing"
+        size = os.path.getsize(full)
+        if size != want["bytes"]:
+            return rel, f"has {size} bytes, {want['bytes']} when it was saved (truncated or overwritten)"
+        if _sha256(full) != want["sha256"]:
+            return rel, "differs from the SHA-256 digest recorded when it was saved (its bytes changed)"
+    return None

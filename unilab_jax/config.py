@@ -2,13 +2,16 @@
 
 Every algorithm has one frozen dataclass config and every task a ``default_config()``. Overrides come
 as ``{"key": value}`` or ``["key=value", ...]`` strings (from the ``--config`` flag); unknown keys
-are rejected with the list of valid ones, and values are converted to the field's declared type.
+are rejected with the list of valid ones, values are converted to the field's declared type, non-finite
+numbers (``1e999``, ``nan``, ``inf``) are refused for every field, and the config's own validation
+(its ``__post_init__``) failing is a :class:`ConfigError` too: the CLIs turn every one into exit 2.
 """
 
 from __future__ import annotations
 
 import ast
 import dataclasses
+import math
 import typing
 from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
@@ -17,12 +20,30 @@ C = TypeVar("C")
 
 
 class ConfigError(ValueError):
-    """A bad override: unknown key or a value of the wrong type."""
+    """A bad override: unknown key, a value of the wrong type, a non-finite number, or values the config's
+    own validation refuses."""
+
+
+_NON_FINITE = ("nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infinity", "-infinity")
+
+
+def _check_finite(name: str, value: Any) -> None:
+    """Every float in ``value`` (tuples, lists and dicts searched) must be finite."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"config key {name!r}: must be a finite number, got {value!r}")
+    if isinstance(value, list | tuple):
+        for v in value:
+            _check_finite(name, v)
+    elif isinstance(value, dict):
+        for v in value.values():
+            _check_finite(name, v)
 
 
 def _convert(name: str, value: Any, typ: Any) -> Any:
     origin = typing.get_origin(typ)
     if isinstance(value, str) and typ is not str:
+        if value.strip().lower() in _NON_FINITE:
+            raise ConfigError(f"config key {name!r}: must be a finite number, got {value!r}")
         try:
             value = ast.literal_eval(value)
         except (ValueError, SyntaxError):
@@ -76,7 +97,14 @@ def apply_overrides(config: C, overrides: Mapping[str, Any] | Iterable[str] | No
             f"unknown config key(s) {unknown} for {type(config).__name__}; valid keys: {sorted(fields)}"
         )
     typed = {k: _convert(k, v, hints[k]) for k, v in overrides.items()}
-    return dataclasses.replace(config, **typed)
+    for k, v in typed.items():
+        _check_finite(k, v)
+    try:  # the config's own checks (its __post_init__)
+        return dataclasses.replace(config, **typed)
+    except (ValueError, TypeError) as e:
+        if isinstance(e, ConfigError):
+            raise
+        raise ConfigError(str(e)) from e
 
 
 def as_dict(config: Any) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from unilab_jax.runtime.buffers import ReplayBuffer
 from unilab_jax.runtime.replay_store import (
     ReplayStore,
     RingSpiller,
+    StoreCorruptError,
     StoreFormatError,
     StoreLockedError,
     TieredSampler,
@@ -268,3 +269,33 @@ def test_store_killed_at_random_moments_reopens_consistent(tmp_path):
         committed = store.committed
         store.close()
     assert committed > 20 * 2_000  # the writers got far enough to evict (budget: 12 chunks)
+
+
+def test_a_damaged_index_is_named(tmp_path):
+    """Issue 34: every one-bit flip in index.json, and a truncated index, is a StoreCorruptError naming the file
+    and what to do, never a raw JSONDecodeError or a store reopened with other contents."""
+    d = str(tmp_path / "store")
+    with ReplayStore(d, FIELDS, chunk_rows=50, info={"task": "t"}) as store:
+        store.append(_rows(0, 120))
+        store.flush()
+    path = os.path.join(d, "index.json")
+    good = open(path, "rb").read()
+    assert json.loads(good)["version"] == 2 and "sha256" in json.loads(good)
+    for i in range(len(good)):
+        with open(path, "wb") as f:
+            f.write(good[:i] + bytes([good[i] ^ (1 << (i % 8))]) + good[i + 1:])
+        with pytest.raises(StoreCorruptError) as e:
+            ReplayStore(d, FIELDS).close()
+        assert path in str(e.value) and "--resume" in str(e.value), (i, str(e.value))
+    with open(path, "wb") as f:
+        f.write(good[:100])
+    with pytest.raises(StoreCorruptError, match=f"replay store index {path} is damaged: not readable JSON"):
+        ReplayStore(d, FIELDS)
+    # An index written before digests (version 1) still opens.
+    doc = json.loads(good)
+    del doc["sha256"]
+    with open(path, "w") as f:
+        json.dump({**doc, "version": 1}, f)
+    with ReplayStore(d, FIELDS) as store:
+        assert store.committed == 120 and store.info == {"task": "t"}
+        _check_rows(store.read(store.first_row, store.committed))

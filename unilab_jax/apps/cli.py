@@ -176,6 +176,9 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
     task_config = apply_overrides(tasks.default_config(task_name), task_overrides)  # rejects unknown keys
     task_overrides = {k: getattr(task_config, k) for k in task_overrides}
+    length = getattr(task_config, "episode_length", None)  # every task's; evaluations play whole episodes
+    if isinstance(length, int) and length < 1:
+        raise FlagError(f"--task_config episode_length must be positive, got {length}")
     try:  # the algorithm's own flag checks (platforms, task kind)
         contract.hooks(module).check_run(FLAGS.platform, task_config, config)
     except ValueError as e:
@@ -196,6 +199,15 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError("--utd_window needs an off-policy algorithm and --utd_mode=hold")
     if FLAGS.replay_disk_gb <= 0 or FLAGS.replay_chunk_rows < 0:
         raise FlagError("--replay_disk_gb must be positive and --replay_chunk_rows >= 0")
+    if module.BUFFER == "replay" and not FLAGS.ray_address:  # the trainer's split of replay_capacity (Ray: per host)
+        from unilab_jax.runtime.buffers import ReplayBuffer
+
+        rows = FLAGS.num_workers * ReplayBuffer.worker_rows(max(config.replay_capacity // FLAGS.num_workers, 1),
+                                                            FLAGS.envs_per_worker)
+        if max(config.learning_starts, config.batch_size) > rows:
+            raise FlagError(f"learning_starts/batch_size ({max(config.learning_starts, config.batch_size)}) exceed "
+                            f"the replay capacity ({rows} transitions over {FLAGS.num_workers} workers): raise "
+                            "replay_capacity")
     batch = config.horizon * FLAGS.num_workers * FLAGS.envs_per_worker
     if module.BUFFER == "trajectory" and batch < config.num_minibatches:
         raise FlagError(f"a batch of {batch} transitions cannot make {config.num_minibatches} minibatches")
@@ -272,7 +284,8 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
            errors: tuple[type[Exception], ...] = ()) -> None:
     """The absl ``main`` of every experiment launcher: quiet logging unless ``-v`` is given (orbax logs every
     save at INFO), no stray arguments, ``validate()`` -- a flag or config error (or one of ``errors``) exits
-    with code 2 and a message before anything starts -- then ``train(validate())``."""
+    with code 2 and a message before anything starts -- then ``train(validate())``, where a damaged checkpoint
+    or replay index (found when it is opened, before training) exits with code 2 and its message too."""
 
     def main(argv: list[str]) -> None:
         if not any(a.startswith(("-v", "--v")) for a in sys.argv[1:]):
@@ -286,7 +299,14 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
         except (FlagError, ConfigError, *errors) as e:
             print(f"error: {e}", file=sys.stderr)
             sys.exit(2)
-        train(validated)
+        from unilab_jax.checkpoint import CheckpointCorruptError
+        from unilab_jax.runtime.replay_store import StoreCorruptError
+
+        try:
+            train(validated)
+        except (CheckpointCorruptError, StoreCorruptError) as e:  # damaged saved data, found before training
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
         from unilab_jax.training.threads import learner_busy, stopped_by_signal
 
         if learner_busy() or stopped_by_signal():  # a stopped run: saved and closed, leave without teardown
@@ -298,6 +318,16 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
     app.run(main)
 
 
+def new_trainer(cls: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """``cls(*args, **kwargs)``, a trainer: it builds a probe of the task and the learner, before any worker starts,
+    so a ValueError there (a task config the task refuses) exits with code 2 and its message."""
+    try:
+        return cls(*args, **kwargs)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+
+
 def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None,
                    task_recipe: Mapping[str, Any] | None = None, default_total_steps: int = 1_000_000,
                    sized_for: sizing.SizedFor | None = None) -> None:
@@ -307,7 +337,7 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
     def train(parts: tuple) -> None:
         from unilab_jax.training.trainer import Trainer
 
-        summary = Trainer(*parts, start_time=PROCESS_START).train()
+        summary = new_trainer(Trainer, *parts, start_time=PROCESS_START).train()
         print(json.dumps(summary, indent=2))
         print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
         print(f"checkpoints: {summary['checkpoints']}")

@@ -187,12 +187,12 @@ def run_hora(task: str, teacher_recipe: Mapping[str, Any], student_recipe: Mappi
         if plan["teacher_done"]:
             print(f"teacher: finished run found in {plan['teacher'][0].logdir}, skipped")
         else:
-            summary = Trainer(*plan["teacher"], start_time=cli.PROCESS_START).train()
+            summary = cli.new_trainer(Trainer, *plan["teacher"], start_time=cli.PROCESS_START).train()
             print("teacher:", json.dumps(summary, indent=2))
             if summary["interrupted"]:
                 print("interrupted during the teacher stage; rerun with --resume to continue")
                 return
-        summary = Trainer(*plan["student"], start_time=cli.PROCESS_START).train()
+        summary = cli.new_trainer(Trainer, *plan["student"], start_time=cli.PROCESS_START).train()
         print("student:", json.dumps(summary, indent=2))
         if summary["interrupted"]:
             print("interrupted during the student stage; rerun with --resume to continue")

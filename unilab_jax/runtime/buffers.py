@@ -372,13 +372,19 @@ class ReplayBuffer:
         self.gather_threads = max(1, min(4, usable))
         self._pool: ThreadPoolExecutor | None = None  # started by the first threaded gather (learner only)
 
+    @staticmethod
+    def worker_rows(capacity: int, envs_per_worker: int) -> int:
+        """Rows of a worker's region asked for ``capacity``: whole env steps, at least two (the step a writer
+        is writing is never sampled, see ``sample``)."""
+        m = int(envs_per_worker)
+        return max(-(-int(capacity) // m), 2) * m
+
     @classmethod
     def create(cls, fields: FieldLayout, num_workers: int, envs_per_worker: int, capacity: int) -> ReplayBuffer:
         if min(num_workers, envs_per_worker, capacity) <= 0:
             raise ValueError("num_workers, envs_per_worker and capacity must be positive")
         m, w = int(envs_per_worker), int(num_workers)
-        # At least two steps: the step a writer is writing is never sampled (see ``sample``).
-        cap = max(-(-int(capacity) // m), 2) * m
+        cap = cls.worker_rows(capacity, m)
         control = SharedArrays.create({"count": ((w, 8), np.int64)}, tag="rc")
         try:
             control["count"][:] = 0

@@ -9,9 +9,10 @@ partly from the rings (``hot_fraction``) and partly from disk.
 
 On-disk format (one directory, one writer at a time: an ``flock`` on ``LOCK``)::
 
-    index.json       {"format": "unilab-replay-store", "version": 1, "fields": [[name, shape, dtype], ...],
+    index.json       {"format": "unilab-replay-store", "version": 2, "fields": [[name, shape, dtype], ...],
                       "chunk_rows": C, "committed": R, "next_id": k, "info": {...},
-                      "chunks": [[id, first_row, rows, crc32], ...]}        (oldest first)
+                      "chunks": [[id, first_row, rows, crc32], ...],        (oldest first)
+                      "sha256": SHA-256 of the rest (json.dumps(..., sort_keys=True))}
     chunk_<id>.npy   one structured .npy array of ``rows`` records, one record per transition
 
 Rows are records (row-major), so sampling a transition reads one contiguous ~1.4 KB range (Go1)
@@ -26,12 +27,15 @@ into place and the folder fsynced; then ``index.json`` is rewritten the same way
 it. Evicted chunks leave the index first and are unlinked after. Recovery at open therefore only
 deletes: temp files, chunk files the index does not list (a crash between the two renames or
 before an unlink), and listed chunks whose size or CRC-32 is wrong (with a warning). A SIGKILL
-loses at most the staged rows of the chunk being filled.
+loses at most the staged rows of the chunk being filled. A damaged index (not JSON, its SHA-256 wrong, a
+field missing) is :class:`StoreCorruptError`, naming the file and what to do; version-1 indexes (no
+digest) still open after the same structural checks.
 """
 
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import io
 import json
 import logging
@@ -49,12 +53,12 @@ import numpy as np
 from unilab_jax.runtime.buffers import FieldLayout, ReplayBuffer, SlotCorruptError, row_checksums
 from unilab_jax.runtime.ring import fence
 
-__all__ = ["ReplayStore", "RingSpiller", "StoreFormatError", "StoreLockedError", "TieredSampler",
-           "default_chunk_rows"]
+__all__ = ["ReplayStore", "RingSpiller", "StoreCorruptError", "StoreFormatError", "StoreLockedError",
+           "TieredSampler", "default_chunk_rows"]
 
 log = logging.getLogger(__name__)
 
-FORMAT, VERSION = "unilab-replay-store", 1
+FORMAT, VERSION = "unilab-replay-store", 2  # version 2: the index carries its SHA-256 (version 1 still opens)
 INDEX, LOCK, TMP = "index.json", "LOCK", ".tmp"
 _CHUNK = re.compile(r"^chunk_(\d+)\.npy$")
 CHUNK_TARGET_BYTES = 16 << 20
@@ -62,6 +66,10 @@ CHUNK_TARGET_BYTES = 16 << 20
 
 class StoreFormatError(ValueError):
     """The directory holds a store of another format or with other fields."""
+
+
+class StoreCorruptError(ValueError):
+    """The store's index is damaged (unreadable, its digest wrong, fields missing); the message names it."""
 
 
 class StoreLockedError(RuntimeError):
@@ -87,6 +95,38 @@ def record_dtype(fields: FieldLayout) -> np.dtype:
 
 def _fields_json(fields: FieldLayout) -> list[list[Any]]:
     return [[name, list(shape), np.dtype(dt).str] for name, (shape, dt) in fields.items()]
+
+
+def _index_digest(doc: Mapping[str, Any]) -> str:
+    body = {k: v for k, v in doc.items() if k != "sha256"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+
+
+def _index_problem(raw: bytes) -> tuple[dict | None, str | None]:
+    """(the index document, None) or (None, what is wrong with it)."""
+    try:
+        doc = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as e:
+        return None, f"not readable JSON ({len(raw)} bytes: {e})"
+    if not isinstance(doc, dict):
+        return None, "not a JSON object"
+    if "sha256" in doc:
+        if doc["sha256"] != _index_digest(doc):
+            return None, "its SHA-256 does not match its contents (bytes changed since it was written)"
+    elif doc.get("version") != 1:
+        return None, "its SHA-256 digest is missing"
+    if doc.get("format") != FORMAT or doc.get("version") not in (1, VERSION):
+        return doc, None  # another format: StoreFormatError at the caller
+    try:
+        ok = (all(isinstance(doc[k], int) for k in ("chunk_rows", "committed", "next_id"))
+              and isinstance(doc.get("info", {}), dict)
+              and all(len(f) == 3 and isinstance(f[0], str) and isinstance(f[1], list) for f in doc["fields"])
+              and all(len(c) == 4 and all(isinstance(x, int) for x in c) for c in doc["chunks"]))
+        for _, _, dt in doc["fields"]:
+            np.dtype(dt)
+    except (KeyError, TypeError, ValueError) as e:
+        return None, f"a field is missing or malformed ({type(e).__name__}: {e})"
+    return (doc, None) if ok else (None, "a field is missing or malformed")
 
 
 def _fsync_dir(path: str) -> None:
@@ -163,10 +203,15 @@ class ReplayStore:
         index_path = os.path.join(self.directory, INDEX)
         doc = None
         if os.path.exists(index_path):
-            with open(index_path) as f:
-                doc = json.load(f)
-            if doc.get("format") != FORMAT or doc.get("version") != VERSION:
-                raise StoreFormatError(f"{index_path}: not a version-{VERSION} {FORMAT} index")
+            with open(index_path, "rb") as f:
+                doc, problem = _index_problem(f.read())
+            if problem:
+                raise StoreCorruptError(
+                    f"replay store index {index_path} is damaged: {problem}. Its chunks cannot be trusted without "
+                    f"it: move {self.directory} away (or pass another --replay_dir) and --resume again; the run "
+                    "continues from its checkpoint with an empty disk tier")
+            if doc.get("format") != FORMAT or doc.get("version") not in (1, VERSION):
+                raise StoreFormatError(f"{index_path}: not a version-1 or -{VERSION} {FORMAT} index")
             stored = {n: (tuple(s), np.dtype(d)) for n, s, d in doc["fields"]}
             if fields is not None:
                 want = {n: (tuple(int(x) for x in s), np.dtype(d)) for n, (s, d) in fields.items()}
@@ -370,6 +415,8 @@ class ReplayStore:
         doc = {"format": FORMAT, "version": VERSION, "fields": _fields_json(self.fields),
                "chunk_rows": self.chunk_rows, "committed": self._committed, "next_id": self._next_id,
                "info": self.info, "chunks": [list(c) for c in self._chunks]}
+        doc = json.loads(json.dumps(doc))  # the digest of what a reader parses (tuples, non-string keys)
+        doc["sha256"] = _index_digest(doc)
         _write_atomic(os.path.join(self.directory, INDEX), lambda f: json.dump(doc, f), binary=False)
 
     # ---- reading -------------------------------------------------------------------------------

@@ -152,6 +152,8 @@ class Trainer:
         if self.run.resume:
 
             ckpt = Checkpointer(self.ckpt_dir)
+            for name in ckpt.remove_unfinished_saves():  # a save the previous run was killed in the middle of
+                log.warning("--resume: removed %s, an unfinished checkpoint save", os.path.join(self.ckpt_dir, name))
             if ckpt.latest_step() is None:
                 raise FileNotFoundError(f"--resume: no checkpoint under {self.ckpt_dir}")
             state, meta = ckpt.restore(state, lambda a, like: self.xp.from_numpy(a))

@@ -54,6 +54,9 @@ class OffPolicyConfig:
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""
         problems = []
+        if not all(n >= 1 for n in (*self.actor_hidden, *self.critic_hidden)):
+            problems.append(f"hidden layer sizes must be positive (actor_hidden={self.actor_hidden}, "
+                            f"critic_hidden={self.critic_hidden})")
         if self.batch_size <= 0 or self.updates_per_call <= 0 or self.publish_every <= 0:
             problems.append("batch_size, updates_per_call and publish_every must be positive")
         if self.utd <= 0 or self.replay_capacity <= 0 or self.learning_starts < 0:

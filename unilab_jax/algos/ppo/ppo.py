@@ -46,6 +46,31 @@ class PPOConfig:
     normalize_obs: bool = True
     obs_clip: float = 10.0
 
+    def __post_init__(self) -> None:
+        """Rejects invalid settings before any worker starts, every problem in one message."""
+        problems = self.problems()
+        if problems:
+            raise ValueError(f"{type(self).__name__}: " + "; ".join(problems))
+
+    def problems(self) -> list[str]:
+        """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""
+        problems = []
+        if not all(n >= 1 for n in (*self.actor_hidden, *self.critic_hidden)):
+            problems.append(f"hidden layer sizes must be positive (actor_hidden={self.actor_hidden}, "
+                            f"critic_hidden={self.critic_hidden})")
+        if min(self.horizon, self.num_epochs, self.num_minibatches) < 1:
+            problems.append("horizon, num_epochs and num_minibatches must be positive")
+        if not (0.0 <= self.gamma <= 1.0 and 0.0 <= self.lam <= 1.0):
+            problems.append(f"need 0 <= gamma <= 1 and 0 <= lam <= 1 (gamma={self.gamma}, lam={self.lam})")
+        if not (self.learning_rate > 0 and self.max_grad_norm > 0 and self.clip_eps > 0 and self.obs_clip > 0):
+            problems.append("learning_rate, max_grad_norm, clip_eps and obs_clip must be positive")
+        if min(self.value_clip, self.vf_coef, self.desired_kl) < 0:
+            problems.append("value_clip, vf_coef and desired_kl must be >= 0 (0 disables value clipping, the "
+                            "KL-adaptive learning rate)")
+        if self.activation not in nets.ACTIVATIONS:
+            problems.append(f"activation must be one of {nets.ACTIVATIONS}, got {self.activation!r}")
+        return problems
+
 
 class TrainState(NamedTuple):
     """The whole PPO/APPO training state (one pytree; arrays of the learner's platform)."""
