@@ -54,6 +54,7 @@ LAYERS = [
     ("unilab_jax.apps.play", 7.1), ("unilab_jax.apps.export", 7.1), ("unilab_jax.apps.record", 7.1),
     ("unilab_jax.apps.cli", 7.2),
     ("unilab_jax.apps.hora_cli", 7.3), ("unilab_jax.apps.mjx_cli", 7.3), ("unilab_jax.apps.robot_cli", 7.3),
+    ("unilab_jax.apps.api", 7.3),  # unilab_jax.train: the experiments' checks (cli.build_run), then the trainer
     # L8: experiment scripts
     ("experiments.*", 8),
 ]

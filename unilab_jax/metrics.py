@@ -71,8 +71,20 @@ class MetricLogger:
         self._jsonl.close()
 
 
+def evaluation_line(step: int, result: dict[str, float]) -> str:
+    """The line printed when an evaluation finishes: its return and the task's own evaluation numbers."""
+    shown = {k.removeprefix("eval/"): v for k, v in result.items()
+             if k.startswith("eval/") and not k.endswith(("wall_s", "skipped"))}
+    first = ["return"] if "return" in shown else []
+    parts = [f"{k} {shown[k]:.4g}" for k in first + sorted(k for k in shown if k != "return")]
+    return f"eval at step {int(step):,}: " + ("  ".join(parts) or "(no result)")
+
+
 class ProgressBar:
-    """A rich progress bar with env steps/s and ETA; plain log lines when stdout is not a terminal."""
+    """A rich progress bar with env steps/s and ETA; when stdout is not a terminal (a log file, a cluster job),
+    a plain line at the first update and then at least every ``PLAIN_EVERY_S`` seconds while updates come."""
+
+    PLAIN_EVERY_S = 10.0
 
     def __init__(self, total: int, start: int = 0):
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -91,7 +103,7 @@ class ProgressBar:
         rate = (step - self._start_step) / elapsed
         ret = f"{episode_return:.3f}" if episode_return is not None else "-"
         self._progress.update(self._task, completed=step, rate=f"{rate:,.0f}", ret=ret)
-        if not sys.stdout.isatty() and time.time() - self._last_print > 10.0:
+        if not sys.stdout.isatty() and time.time() - self._last_print >= self.PLAIN_EVERY_S:
             self._last_print = time.time()
             print(f"step {step:,}  {rate:,.0f} env steps/s  episode return {ret}", flush=True)
 

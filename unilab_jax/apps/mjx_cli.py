@@ -10,7 +10,6 @@ The shared experiment flags of ``unilab_jax.apps.cli`` (``--total_steps``, ``--s
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Mapping
 from typing import Any
@@ -91,8 +90,6 @@ def run_mjx_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = 
         return make_trainer(run, module, config, task_overrides, start_time=cli.PROCESS_START)
 
     def train(trainer: Any) -> None:
-        summary = trainer.train()
-        print(json.dumps(summary, indent=2))
-        print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
+        cli.report(trainer.train())
 
     cli.launch(validate, train, errors=(ValueError,))

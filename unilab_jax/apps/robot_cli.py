@@ -51,7 +51,7 @@ from typing import Any
 from absl import flags
 
 from unilab_jax import algos
-from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
+from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, launch, report
 
 # The manipulation recipe of sac_franka_peg, rlpd_franka_peg and rlpd_franka_pick: small networks and utd 4 fit a
 # 2-core CPU (``--config utd=20``: the RLPD paper's ratio, for a GPU); the policy sees the object state. A small
@@ -224,8 +224,7 @@ def _train(validated: tuple, dense_reward: bool) -> None:
     summary["robot_s"] = summary["env_steps"] / found[0].spec.control_hz + demo_s
     with open(os.path.join(run.logdir, "summary.json"), "w") as f:
         json.dump(summary, f, indent=2)
-    print(json.dumps(summary, indent=2))
-    print(f"logs: {summary['logdir']}  checkpoints: {summary['checkpoints']}")
+    report(summary)
 
 
 def _check_cameras(found: list, task_config: Any, config: Any) -> None:

@@ -1,0 +1,69 @@
+"""Training from Python (``unilab_jax.train``, ``unilab_jax/apps/api.py``): validated as the command line is, before
+anything starts, and returning the run's summary; the end-of-run report of the CLIs."""
+
+import json
+import os
+
+import pytest
+
+import unilab_jax
+from unilab_jax.config import ConfigError
+from unilab_jax.training.trainer import RunConfig
+
+SMALL = {"actor_hidden": (16,), "critic_hidden": (16,), "horizon": 32, "ent_coef": 0.0}
+
+
+def test_train_returns_the_summary(tmp_path):
+    logdir = str(tmp_path / "ppo")
+    summary = unilab_jax.train(algo="ppo", task="cartpole_balance", total_steps=20000, logdir=logdir, config=SMALL,
+                               task_config={"episode_length": 100}, num_workers=1, envs_per_worker=16, eval_envs=2)
+    assert summary["env_steps"] >= 20000 and summary["updates"] > 0 and not summary["interrupted"]
+    assert "eval/return" in summary and "warning" not in summary
+    assert summary == json.load(open(os.path.join(logdir, "summary.json")))
+
+
+@pytest.mark.parametrize("kwargs,error,message", [
+    ({"algo": "nope"}, ValueError, "unknown algorithm 'nope'"),
+    ({"task": "nope"}, ValueError, "unknown task 'nope'"),
+    ({"config": {"learning_rat": 1e-3}}, ConfigError, "unknown config key"),
+    ({"config": {"learning_rate": "fast"}}, ConfigError, "learning_rate"),
+    ({"task_config": {"episode_lenght": 10}}, ConfigError, "unknown config key"),
+    ({"num_workers": 0}, ValueError, "num_workers must be at least 1"),
+    ({"total_steps": 0}, ValueError, "total_steps must be positive"),
+    ({"num_wokers": 2}, ValueError, "unknown run option"),
+    ({"utd_mode": "fast"}, ValueError, "utd_mode"),
+    ({"eval_envs": "4"}, ValueError, "eval_envs"),
+    ({"replay_dir": "x"}, ValueError, "does not use a replay buffer"),
+])
+def test_bad_arguments_raise_before_anything_starts(tmp_path, kwargs, error, message):
+    args = {"algo": "ppo", "task": "cartpole_balance", "total_steps": 1000, "logdir": str(tmp_path / "run"), **kwargs}
+    with pytest.raises(error, match=message):
+        unilab_jax.train(**args)
+    assert not os.path.exists(tmp_path / "run")
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"task": "nope"}, "unknown task 'nope'"), ({"num_workers": 0}, "num_workers must be a positive integer"),
+    ({"algo": "nope"}, "unknown algorithm"), ({"utd_mode": "fast"}, "utd_mode"), ({"eval_every": -1}, "eval_every"),
+])
+def test_run_config_rejects_what_cannot_run(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        RunConfig(**{"algo": "ppo", "task": "cartpole_balance", **kwargs})
+
+
+def test_the_package_import_stays_light():
+    import subprocess
+    import sys
+
+    code = ("import sys, unilab_jax; "
+            "print(sorted(m for m in ('jax', 'unilab_jax.apps.api', 'tasks') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_report_names_the_extra_and_ends_with_the_warning(capsys):
+    from unilab_jax.apps.cli import report
+
+    report({"logdir": "/tmp/x", "checkpoints": "/tmp/x/checkpoints", "updates": 0, "warning": "no learner update"})
+    out = capsys.readouterr().out.splitlines()
+    assert "unilab-jax[tensorboard]" in out[-3] and out[-1] == "warning: no learner update"
