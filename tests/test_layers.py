@@ -52,6 +52,7 @@ LAYERS = [
     # L7: the applications wing: saved runs < play, export, record < the experiments' flags < the family CLIs
     ("unilab_jax.apps", 7.0), ("unilab_jax.apps.saved_run", 7.0),
     ("unilab_jax.apps.play", 7.1), ("unilab_jax.apps.export", 7.1), ("unilab_jax.apps.record", 7.1),
+    ("unilab_jax.apps.cli_help", 7.1),
     ("unilab_jax.apps.cli", 7.2),
     ("unilab_jax.apps.hora_cli", 7.3), ("unilab_jax.apps.mjx_cli", 7.3), ("unilab_jax.apps.robot_cli", 7.3),
     ("unilab_jax.apps.api", 7.3),  # unilab_jax.train: the experiments' checks (cli.build_run), then the trainer

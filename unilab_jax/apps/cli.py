@@ -100,6 +100,35 @@ flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatabl
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
 
+# The flags every run reads, and those only off-policy runs read (--help lists each script's own).
+RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker", "seed", "logdir", "resume",
+             "eval_every", "eval_envs", "checkpoint_every", "video_every", "serial", "pin_cpus", "devices", "config",
+             "task_config")
+REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
+                "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
+
+
+def run_flags(algo: str) -> list[str]:
+    """The shared flags a run of ``algo`` reads: the replay flags only for an off-policy algorithm."""
+    from unilab_jax import algos
+
+    return [*RUN_FLAGS, *(REPLAY_FLAGS if algos.get(algo).BUFFER == "replay" else ())]
+
+
+def help_text(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
+              default_total_steps: int, flag_names: list[str] | None = None, extra_flags: tuple[str, ...] = (),
+              defaults: Mapping[str, Any] | None = None) -> str:
+    """An experiment's ``--help``: its docstring, the run's flags, the algorithm's and the task's config fields."""
+    from unilab_jax.apps import cli_help
+
+    task_name = cli_help.requested_task(task)
+    names = [*(run_flags(algo) if flag_names is None else flag_names), *extra_flags]
+    return cli_help.text(cli_help.main_doc(), [
+        cli_help.flag_lines("flags", names, {"task": task, "total_steps": default_total_steps, **(defaults or {})}),
+        cli_help.algorithm_lines(algo, recipe),
+        cli_help.task_lines(task_name, task_recipe if task_name == task else {})])
+
+
 class FlagError(ValueError):
     """A bad flag value, reported before anything starts."""
 
@@ -295,7 +324,7 @@ def report(summary: Mapping[str, Any]) -> None:
 
 
 def launch(validate: Callable[[], Any], train: Callable[[Any], None],
-           errors: tuple[type[Exception], ...] = ()) -> None:
+           errors: tuple[type[Exception], ...] = (), help: Callable[[], str] | None = None) -> None:
     """The absl ``main`` of every experiment launcher: quiet logging unless ``-v`` is given (orbax logs every
     save at INFO), no stray arguments, ``validate()`` -- a flag or config error (or one of ``errors``) exits
     with code 2 and a message before anything starts -- then ``train(validate())``."""
@@ -321,6 +350,10 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
             sys.stderr.flush()
             os._exit(0)
 
+    if help is not None:  # before absl: its --help lists no flag of ours and exits 1
+        from unilab_jax.apps import cli_help
+
+        cli_help.exit_on_help(help)
     app.run(main)
 
 
@@ -337,4 +370,5 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
 
     if sized_for is not None:
         FLAGS.set_default("num_workers", sizing.AUTO)
-    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps, sized_for), train)
+    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps, sized_for), train,
+           help=lambda: help_text(algo, task, recipe or {}, task_recipe or {}, default_total_steps))

@@ -92,4 +92,8 @@ def run_mjx_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = 
     def train(trainer: Any) -> None:
         cli.report(trainer.train())
 
-    cli.launch(validate, train, errors=(ValueError,))
+    names = ["platform", "task", "total_steps", "seed", "logdir", "eval_every", "eval_envs", "devices", "config",
+             "task_config", "num_envs", "iterations_per_call", "max_seconds"]
+    cli.launch(validate, train, errors=(ValueError,), help=lambda: cli.help_text(
+        algo, task, recipe or {}, task_recipe or {}, default_total_steps, flag_names=names,
+        defaults={"num_envs": default_num_envs, "iterations_per_call": default_iterations_per_call}))

@@ -51,7 +51,7 @@ from typing import Any
 from absl import flags
 
 from unilab_jax import algos
-from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, launch, report
+from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, help_text, launch, report
 
 # The manipulation recipe of sac_franka_peg, rlpd_franka_peg and rlpd_franka_pick: small networks and utd 4 fit a
 # 2-core CPU (``--config utd=20``: the RLPD paper's ratio, for a GPU); the policy sees the object state. A small
@@ -247,6 +247,13 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt  # unwinds through Inventory, which stops the servers this run started
 
 
+def _own_flags() -> list[str]:
+    """The flags this module adds to the shared ones (``--robots``, ``--speed`` ...)."""
+    from unilab_jax.apps import cli_help
+
+    return cli_help.flags_of(__name__)
+
+
 def run_robot_experiment(algo: str, task: str, recipe: Mapping[str, Any], default_total_steps: int,
                          task_recipe: Mapping[str, Any] | None = None, dense_reward: bool = True,
                          observation: str = "proprio") -> None:
@@ -254,4 +261,8 @@ def run_robot_experiment(algo: str, task: str, recipe: Mapping[str, Any], defaul
     ``observation``: the default of ``--observation`` (``OBSERVATIONS``; ``task_recipe`` goes on top)."""
     signal.signal(signal.SIGTERM, _terminate)
     launch(lambda: _validate(algo, task, recipe, task_recipe or {}, default_total_steps, observation),
-           lambda validated: _train(validated, dense_reward), errors=(ValueError,))  # config checks: exit 2
+           lambda validated: _train(validated, dense_reward), errors=(ValueError,),  # config checks: exit 2
+           help=lambda: help_text(algo, task, recipe,
+                                  {**ROBOT_TASK, **OBSERVATIONS[observation], **(task_recipe or {})},
+                                  default_total_steps, extra_flags=tuple(_own_flags()),
+                                  defaults={"observation": observation, "dense_reward": dense_reward}))
