@@ -97,3 +97,20 @@ def test_help_lists_the_run_flags_and_the_configs():
 def test_help_of_every_command_line_family(script, expect):
     out = _help(script)
     assert out.returncode == 0 and expect in out.stdout and "--total_steps" in out.stdout, out.stderr[-2000:]
+
+
+def test_a_run_without_updates_says_why(tmp_path):
+    """The issue's case (learning starts at 10,000 transitions, the run takes fewer): the CLI ends with a warning
+    that names learning_starts; each evaluation prints a line."""
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    script = os.path.join(root, "experiments", "sac_mujoco_gym.py")
+    out = subprocess.run([sys.executable, script, "--task=gym:Pendulum-v1", "--total_steps=2000", "--num_workers=1",
+                          "--envs_per_worker=4", "--eval_envs=1", f"--logdir={tmp_path}"], cwd=root,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    last = out.stdout.strip().splitlines()[-1]
+    assert last.startswith("warning: no learner update") and "learning_starts=10000" in last, out.stdout[-2000:]
+    assert "eval at step" in out.stdout and json.load(open(tmp_path / "summary.json"))["updates"] == 0

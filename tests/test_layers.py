@@ -27,6 +27,7 @@ LAYERS = [
     ("unilab_jax", 1), ("unilab_jax.core", 1), ("unilab_jax.core.*", 1), ("unilab_jax.nets", 1),
     ("unilab_jax.nets_temporal", 1), ("unilab_jax.config", 1), ("unilab_jax.metrics", 1),
     ("unilab_jax.fields", 1), ("unilab_jax.lazy", 1), ("unilab_jax.sizing", 1), ("unilab_mlx", 1), ("unilab_mlx.*", 1),
+    ("unilab_jax.recipes", 1),  # the experiments' recipes as data (names of algorithms and tasks, no imports)
     # the algorithm contract (pure standard library): the runtime reads a declaration's hooks through it
     ("unilab_jax.algos.contract", 1),
     # The command entry points kept at their documented names (python -m unilab_jax.play / .export /

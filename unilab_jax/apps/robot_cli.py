@@ -52,15 +52,8 @@ from absl import flags
 
 from unilab_jax import algos
 from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, help_text, launch, report
+from unilab_jax.recipes import MANIPULATION_RECIPE  # noqa: F401 (the manipulation scripts' recipe, kept here too)
 
-# The manipulation recipe of sac_franka_peg, rlpd_franka_peg and rlpd_franka_pick: small networks and utd 4 fit a
-# 2-core CPU (``--config utd=20``: the RLPD paper's ratio, for a GPU); the policy sees the object state. A small
-# initial temperature: success ends an episode, and the entropy bonus carried in the soft target (alpha x entropy
-# / (1 - gamma), ~24 at RLPD's init_alpha 1 on peg insertion) outweighed the success bonus, so learners avoided
-# finishing.
-MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), "batch_size": 128,
-                       "updates_per_call": 16, "publish_every": 16, "utd": 4.0, "learning_starts": 300,
-                       "replay_capacity": 200_000, "gamma": 0.95, "init_alpha": 0.01}
 STATE_TASK = {"policy_state": True}
 IMAGE_TASK = {"cameras": ("front",), "image_size": 32, "frame_stack": 3}
 # With images, on top of the algorithm's recipe: an encoder of two strided 8-channel convolutions and utd 0.5, so

@@ -247,7 +247,7 @@ class ReplaySource:
             return (f"no learner update: off-policy learning starts once the replay buffer holds "
                     f"max(learning_starts={int(cfg.learning_starts)}, batch_size={int(cfg.batch_size)}) = "
                     f"{self._need:,} transitions, and the run took {env_steps:,} env steps; raise --total_steps "
-                    f"or lower it (--config learning_starts=N)")
+                    f"or lower learning_starts (--config learning_starts=N)")
         done = self._consumed * cfg.updates_per_call
         owed = cfg.utd * max(env_steps - self._learn_start, 0)
         if done < 0.9 * owed and owed - done >= cfg.updates_per_call:
