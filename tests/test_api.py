@@ -114,3 +114,18 @@ def test_a_run_without_updates_says_why(tmp_path):
     last = out.stdout.strip().splitlines()[-1]
     assert last.startswith("warning: no learner update") and "learning_starts=10000" in last, out.stdout[-2000:]
     assert "eval at step" in out.stdout and json.load(open(tmp_path / "summary.json"))["updates"] == 0
+
+
+def test_piped_progress_prints_while_the_step_stands_still(capsys, monkeypatch):
+    import time
+
+    from unilab_jax.metrics import ProgressBar
+
+    monkeypatch.setattr(ProgressBar, "PLAIN_EVERY_S", 0.05)
+    bar = ProgressBar(1000)
+    bar.update(100, 1.5)
+    time.sleep(0.3)  # no update: a compile, a warm-up
+    bar.close()
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) >= 3 and all(line.startswith("step 100/1,000") for line in lines), lines
+    assert "episode return 1.500" in lines[-1]

@@ -20,3 +20,12 @@ def train(algo: str, task: str, *, logdir: str, total_steps: int, config: dict[s
 
     return load("unilab_jax.apps.api:train")(algo, task, logdir=logdir, total_steps=total_steps, config=config,
                                              task_config=task_config, **run_options)
+
+
+def __getattr__(name: str) -> Any:
+    """``unilab_jax.recipes`` without importing it first (it is pure data)."""
+    if name == "recipes":
+        import importlib
+
+        return importlib.import_module("unilab_jax.recipes")
+    raise AttributeError(f"module 'unilab_jax' has no attribute {name!r}")

@@ -82,30 +82,54 @@ def evaluation_line(step: int, result: dict[str, float]) -> str:
 
 class ProgressBar:
     """A rich progress bar with env steps/s and ETA; when stdout is not a terminal (a log file, a cluster job),
-    a plain line at the first update and then at least every ``PLAIN_EVERY_S`` seconds while updates come."""
+    a plain line at the first update and then every ``PLAIN_EVERY_S`` seconds, from a timer thread, so lines keep
+    coming while the learner compiles or waits (the step count then stands still)."""
 
     PLAIN_EVERY_S = 10.0
 
     def __init__(self, total: int, start: int = 0):
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+        self._plain = not sys.stdout.isatty()
         self._progress = Progress(TextColumn("[bold]training"), BarColumn(), MofNCompleteColumn(),
                                   TextColumn("{task.fields[rate]} steps/s"), TextColumn("return {task.fields[ret]}"),
-                                  TimeRemainingColumn(), disable=not sys.stdout.isatty())
+                                  TimeRemainingColumn(), disable=self._plain)
         self._task = self._progress.add_task("train", total=total, completed=start, rate="-", ret="-")
         self._progress.start()
-        self._last_print = 0.0
-        self._start_step = start
+        self._start_step = self._step = start
+        self._total = total
+        self._ret = "-"
         self._t0 = time.time()
+        self._lock = threading.Lock()
+        self._printed = False
+        self._closed = threading.Event()
+        self._timer = None
+        if self._plain:
+            self._timer = threading.Thread(target=self._tick, name="progress", daemon=True)
+            self._timer.start()
+
+    def _line(self) -> str:
+        rate = (self._step - self._start_step) / max(time.time() - self._t0, 1e-9)
+        return f"step {self._step:,}/{self._total:,}  {rate:,.0f} env steps/s  episode return {self._ret}"
+
+    def _tick(self) -> None:
+        while not self._closed.wait(self.PLAIN_EVERY_S):
+            with self._lock:
+                print(self._line(), flush=True)
 
     def update(self, step: int, episode_return: float | None) -> None:
-        elapsed = max(time.time() - self._t0, 1e-9)
-        rate = (step - self._start_step) / elapsed
-        ret = f"{episode_return:.3f}" if episode_return is not None else "-"
-        self._progress.update(self._task, completed=step, rate=f"{rate:,.0f}", ret=ret)
-        if not sys.stdout.isatty() and time.time() - self._last_print >= self.PLAIN_EVERY_S:
-            self._last_print = time.time()
-            print(f"step {step:,}  {rate:,.0f} env steps/s  episode return {ret}", flush=True)
+        with self._lock:
+            self._step = step
+            if episode_return is not None:
+                self._ret = f"{episode_return:.3f}"
+            rate = (step - self._start_step) / max(time.time() - self._t0, 1e-9)
+            self._progress.update(self._task, completed=step, rate=f"{rate:,.0f}", ret=self._ret)
+            if self._plain and not self._printed:  # the first line at once, then the timer's
+                self._printed = True
+                print(self._line(), flush=True)
 
     def close(self) -> None:
+        self._closed.set()
+        if self._timer is not None:
+            self._timer.join()
         self._progress.stop()
