@@ -129,3 +129,27 @@ def test_piped_progress_prints_while_the_step_stands_still(capsys, monkeypatch):
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) >= 3 and all(line.startswith("step 100/1,000") for line in lines), lines
     assert "episode return 1.500" in lines[-1]
+
+
+def test_wandb_sink_offline(tmp_path, monkeypatch):
+    """--wandb_project / wandb_project=: the run's rows also go to W&B (offline here: kept under <logdir>/wandb)."""
+    pytest.importorskip("wandb")
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    logdir = tmp_path / "run"
+    summary = unilab_jax.train("ppo", "cartpole_balance", total_steps=2048, logdir=str(logdir), config=SMALL,
+                               task_config={"episode_length": 50}, num_workers=1, envs_per_worker=16, eval_envs=1,
+                               wandb_project="unilab-test")
+    assert summary["updates"] > 0
+    runs = list((logdir / "wandb").glob("offline-run-*"))
+    assert len(runs) == 1 and list(runs[0].glob("*.wandb")), list((logdir / "wandb").iterdir())
+
+
+def test_wandb_project_needs_wandb(tmp_path, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "wandb" else real(name, *a))
+    with pytest.raises(ValueError, match=r"unilab-jax\[wandb\]"):
+        unilab_jax.train("ppo", "cartpole_balance", total_steps=1000, logdir=str(tmp_path / "run"),
+                         wandb_project="x")

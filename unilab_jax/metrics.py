@@ -41,9 +41,12 @@ WALKING = WalkingCriterion()
 
 
 class MetricLogger:
-    """Writes scalars to TensorBoard event files and ``metrics.jsonl`` under ``logdir``."""
+    """Writes scalars to TensorBoard event files and ``metrics.jsonl`` under ``logdir``, and to Weights & Biases
+    when ``wandb_project`` is given (``--wandb_project``; ``pip install 'unilab-jax[wandb]'``; ``WANDB_MODE=offline``
+    keeps the run under ``<logdir>/wandb`` for ``wandb sync``). W&B's x-axis is ``env_steps``: evaluations finish
+    after later training rows, which W&B's own step counter would drop."""
 
-    def __init__(self, logdir: str):
+    def __init__(self, logdir: str, wandb_project: str = "", wandb_config: dict | None = None):
         from tensorboardX import SummaryWriter
 
         os.makedirs(logdir, exist_ok=True)
@@ -51,6 +54,14 @@ class MetricLogger:
         self._tb = SummaryWriter(logdir=logdir, flush_secs=10)
         self._jsonl = open(os.path.join(logdir, "metrics.jsonl"), "a")  # noqa: SIM115 (closed in close())
         self._lock = threading.Lock()  # the learner and the evaluation thread both log
+        self._wandb = None
+        if wandb_project:
+            import wandb
+
+            self._wandb = wandb.init(project=wandb_project, name=os.path.basename(os.path.abspath(logdir)),
+                                     dir=logdir, config=wandb_config or {})
+            self._wandb.define_metric("env_steps")
+            self._wandb.define_metric("*", step_metric="env_steps")
 
     def log(self, step: int, scalars: dict[str, float]) -> None:
         clean = {k: float(v) for k, v in scalars.items() if v is not None and math.isfinite(float(v))}
@@ -59,6 +70,8 @@ class MetricLogger:
                 self._tb.add_scalar(k, v, global_step=step)
             self._jsonl.write(json.dumps({"step": int(step), **clean}) + "\n")
             self._jsonl.flush()
+            if self._wandb is not None:
+                self._wandb.log({**clean, "env_steps": int(step)})
 
     def image(self, step: int, tag: str, image) -> None:
         """An [H, W, 3] uint8 image in TensorBoard's images tab."""
@@ -69,6 +82,8 @@ class MetricLogger:
         self._tb.flush()
         self._tb.close()
         self._jsonl.close()
+        if self._wandb is not None:
+            self._wandb.finish()
 
 
 def evaluation_line(step: int, result: dict[str, float]) -> str:

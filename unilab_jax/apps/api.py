@@ -28,7 +28,7 @@ from unilab_jax.apps import cli
 RUN_OPTIONS = ("platform", "num_workers", "envs_per_worker", "seed", "resume", "eval_every", "eval_envs",
                "checkpoint_every", "video_every", "serial", "replay_dir", "replay_disk_gb", "replay_hot_fraction",
                "replay_chunk_rows", "replay_on_device", "utd_mode", "utd_window", "pin_cpus", "devices",
-               "ray_address", "ray_workers_per_host")
+               "ray_address", "ray_workers_per_host", "wandb_project")
 
 
 def options(algo: str, task: str, *, logdir: str, total_steps: int, config: Mapping[str, Any] | None = None,

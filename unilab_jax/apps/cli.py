@@ -96,14 +96,16 @@ flags.DEFINE_string("ray_address", "", "off-policy: run rollout workers on every
                     "HOST:PORT of its head (empty: this host only; Ray is not imported)")
 flags.DEFINE_integer("ray_workers_per_host", 0, "with --ray_address: worker processes on each node other than the "
                      "learner's (0: --num_workers)")
+flags.DEFINE_string("wandb_project", "", "also log to this Weights & Biases project (pip install "
+                    "'unilab-jax[wandb]'; WANDB_MODE=offline keeps the run under <logdir>/wandb; empty: no W&B)")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
 
 # The flags every run reads, and those only off-policy runs read (--help lists each script's own).
 RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker", "seed", "logdir", "resume",
-             "eval_every", "eval_envs", "checkpoint_every", "video_every", "serial", "pin_cpus", "devices", "config",
-             "task_config")
+             "eval_every", "eval_envs", "checkpoint_every", "video_every", "serial", "pin_cpus", "devices",
+             "wandb_project", "config", "task_config")
 REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
                 "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
 
@@ -251,6 +253,11 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                                opts.envs_per_worker)
         except ValueError as e:
             raise FlagError(str(e)) from e
+    if opts.wandb_project:
+        import importlib.util
+
+        if importlib.util.find_spec("wandb") is None:
+            raise FlagError("--wandb_project: wandb is not installed; pip install 'unilab-jax[wandb]'")
     if opts.ray_address or opts.ray_workers_per_host:
         _check_ray_flags(module, opts)
     logdir = opts.logdir or os.path.join("runs", f"{algo}_{task_name}_s{opts.seed}")
@@ -268,7 +275,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     replay_chunk_rows=opts.replay_chunk_rows, replay_on_device=opts.replay_on_device,
                     utd_mode=opts.utd_mode, utd_window=opts.utd_window, pin_cpus=opts.pin_cpus,
                     video_every=opts.video_every, devices=opts.devices, ray_address=opts.ray_address,
-                    ray_workers_per_host=opts.ray_workers_per_host)
+                    ray_workers_per_host=opts.ray_workers_per_host, wandb_project=opts.wandb_project)
     return run, module, config, task_overrides
 
 

@@ -102,6 +102,7 @@ class RunConfig:
     # (0: num_workers). unilab_jax/runtime/ray_pool.py.
     ray_address: str = ""
     ray_workers_per_host: int = 0
+    wandb_project: str = ""  # also log to this Weights & Biases project (metrics.MetricLogger; "" = no W&B)
 
     def __post_init__(self) -> None:
         """The checks that need nothing started: names that exist, counts that can run (``apps.cli.build_run``
@@ -158,7 +159,9 @@ class Trainer:
             self.parallel = sharding.for_run(self.learner, run, algo_config, algo_module.BUFFER)
             self.learner = self.parallel or self.learner
         self.batch_xp = self.parallel or self.xp  # what the batch sources place host arrays with (from_numpy)
-        self.logger = MetricLogger(run.logdir)
+        self.logger = MetricLogger(run.logdir, run.wandb_project,
+                                   {"run": dataclasses.asdict(run), "algo": dataclasses.asdict(algo_config),
+                                    "task_overrides": dict(task_overrides)} if run.wandb_project else None)
         self.ckpt_dir = os.path.join(os.path.abspath(run.logdir), "checkpoints")
         self._stop = threading.Event()
         self._resumed_meta: dict[str, Any] = {}  # meta of the checkpoint this run resumed from
