@@ -41,6 +41,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     given = [name for name in RUNTIME_ONLY if name in FLAGS and FLAGS[name].present]
     if given:
         raise cli.FlagError(f"--{given[0]} is a flag of the CPU-worker runtime; MJX runs take --num_envs")
+    if FLAGS.wandb_project:
+        raise cli.FlagError("--wandb_project: the MJX loop logs to TensorBoard and metrics.jsonl only")
     if FLAGS.platform != "jax":
         raise cli.FlagError(f"--platform={FLAGS.platform!r}: MJX runs need jax")
     if FLAGS.devices != "1":
