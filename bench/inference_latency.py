@@ -46,22 +46,21 @@ STUDENT_HISTORY = 30  # hora_cli's --history_len default
 
 
 def recipes() -> list[tuple[str, str, str, dict, dict]]:
-    """(script, algorithm, task, algorithm recipe, task recipe) of every CPU locomotion recipe."""
+    """(script, algorithm, task, algorithm recipe, task recipe) of every CPU locomotion recipe (unilab_jax.recipes)."""
+    from unilab_jax import recipes as table
+
     out = []
-    for name in sorted(os.listdir(os.path.join(REPO, "experiments"))):
-        if not name.endswith(".py") or "mjx" in name or not re.search(r"go1|go2|g1", name):
+    for name in table.names():
+        if "mjx" in name or not re.search(r"go1|go2|g1", name):
             continue
-        mod = importlib.import_module(name[:-3])
-        text = open(os.path.join(REPO, "experiments", name)).read()
-        task_recipe = dict(getattr(mod, "TASK_RECIPE", {}))
-        if "run_hora(" in text:
-            task = re.search(r'run_hora\(task="(\w+)"', text).group(1)
-            out.append((name, "hora_teacher", task, dict(mod.TEACHER_RECIPE), {**task_recipe, "history_len": 1}))
-            out.append((name, "hora_student", task, dict(mod.STUDENT_RECIPE),
-                        {**task_recipe, "history_len": STUDENT_HISTORY}))
+        r = table.get(name)
+        script = f"{name}.py"
+        if r.launcher == "run_hora":
+            out.append((script, "hora_teacher", r.task, r.recipe, {**r.task_recipe, "history_len": 1}))
+            out.append((script, "hora_student", r.task, dict(r.kwargs["student_recipe"]),
+                        {**r.task_recipe, "history_len": STUDENT_HISTORY}))
             continue
-        algo, task = re.search(r'algo="(\w+)", task="(\w+)"', text).groups()
-        out.append((name, algo, task, dict(getattr(mod, "RECIPE", {})), task_recipe))
+        out.append((script, r.algo, r.task, r.recipe, r.task_recipe))
     return out
 
 
@@ -96,7 +95,9 @@ def published_weights(algo: str, task: str, recipe: dict, task_recipe: dict) -> 
 
 
 def _teacher_recipe() -> dict:
-    return dict(importlib.import_module("hora_go1").TEACHER_RECIPE)
+    from unilab_jax import recipes as table
+
+    return table.get("hora_go1").recipe
 
 
 def percentiles(fn, obs: np.ndarray, calls: int, warmup: int) -> dict[str, float]:

@@ -179,18 +179,10 @@ def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config,
 
 
 def _recipe(path: str) -> dict:
-    """The ``RECIPE`` dict of an experiment script, read without running it."""
-    import importlib.util
+    """The algorithm recipe an experiment script runs (``unilab_jax.recipes``, by the script's name)."""
+    from unilab_jax import recipes
 
-    spec = importlib.util.spec_from_file_location("_bench_recipe", path)
-    module = importlib.util.module_from_spec(spec)
-    folder = os.path.dirname(os.path.abspath(path))
-    sys.path.insert(0, folder)  # recipes build on each other (flashsac_go2 imports flashsac_go1's)
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(folder)
-    return dict(module.RECIPE)
+    return recipes.get(os.path.basename(path)).recipe
 
 
 def main() -> None:

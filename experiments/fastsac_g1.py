@@ -12,13 +12,10 @@ therefore lie in about [-1.5, 1.7]; [-2, 3] keeps a 0.05 atom spacing. Initial p
 joint (the bounded log-std head at its midpoint).
 """
 
-from fastsac_go1 import RECIPE as GO1_RECIPE  # FastSAC's recipe; only the support differs
-
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
-from unilab_jax.sizing import SizedFor
 
-RECIPE = {**GO1_RECIPE, "v_min": -2.0, "v_max": 3.0}
+RECIPE = recipes.FASTSAC_G1
 
 if __name__ == "__main__":
-    run_experiment(algo="fastsac", task="g1_walk_flat", recipe=RECIPE, default_total_steps=100_000_000,
-                   sized_for=SizedFor("a 16-core H100 host", 16, 64))
+    run_experiment(**recipes.get("fastsac_g1").kwargs)

@@ -10,13 +10,10 @@ jump across their range on all 29 joints) and the joint-limit penalty. 0.97-disc
 about [-3, 3.3]; [-3, 4] keeps a 0.07 atom spacing.
 """
 
-from fastsac_go1 import RECIPE as GO1_RECIPE  # FastSAC's recipe; only the support differs
-
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
-from unilab_jax.sizing import SizedFor
 
-RECIPE = {**GO1_RECIPE, "v_min": -3.0, "v_max": 4.0}
+RECIPE = recipes.FASTSAC_G1_TRACK
 
 if __name__ == "__main__":
-    run_experiment(algo="fastsac", task="g1_track", recipe=RECIPE, default_total_steps=100_000_000,
-                   sized_for=SizedFor("a 16-core H100 host", 15, 64))
+    run_experiment(**recipes.get("fastsac_g1_track").kwargs)

@@ -11,11 +11,10 @@ policy std 0.22 per joint (see sac_go1.py): small, as Go1's clipped reward needs
 (``FastSACConfig``); the recipe lists what differs: the support.
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
-from unilab_jax.sizing import SizedFor
 
-RECIPE = {"v_min": -0.5, "v_max": 1.5}
+RECIPE = recipes.FASTSAC_GO1
 
 if __name__ == "__main__":
-    run_experiment(algo="fastsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
-                   sized_for=SizedFor("a 16-core H100 host", 16, 64))
+    run_experiment(**recipes.get("fastsac_go1").kwargs)

@@ -6,10 +6,8 @@ The recipe of ``fastsac_go1.py`` (networks, C51 support, batch 8192, 8 gradient 
 transitions); with 1024 envs each iteration is one env step of every env followed by 8 gradient steps.
 """
 
-from fastsac_go1 import RECIPE
-
+from unilab_jax import recipes
 from unilab_jax.apps.mjx_cli import run_mjx_experiment
 
 if __name__ == "__main__":
-    run_mjx_experiment(algo="fastsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
-                       default_num_envs=1024, default_iterations_per_call=50)
+    run_mjx_experiment(**recipes.get("fastsac_go1_mjx").kwargs)

@@ -15,11 +15,10 @@ at 0.001 and the initial policy std is ~0.2 per joint (small, as Go1's clipped r
 update rate, batch and clipping are FlashSAC's defaults (``FlashSACConfig``); the recipe lists what differs.
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
-from unilab_jax.sizing import SizedFor
 
-RECIPE = {"gamma": 0.97, "init_alpha": 0.001, "normalize_rewards": False, "v_min": -0.5, "v_max": 1.5}
+RECIPE = recipes.FLASHSAC_GO1
 
 if __name__ == "__main__":
-    run_experiment(algo="flashsac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
-                   sized_for=SizedFor("a 16-core H100 host", 16, 64))
+    run_experiment(**recipes.get("flashsac_go1").kwargs)

@@ -13,13 +13,10 @@ per-step reward is r / rms * 0.01 and normalised returns are ~mean(r) / rms(r): 
 [-2, 4] covers that with a 0.06 atom spacing (FlashSAC's default [-5, 5] would waste half its atoms).
 """
 
-from flashsac_go1 import RECIPE as GO1_RECIPE  # FlashSAC's recipe; discount, reward scaling and support differ
-
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
-from unilab_jax.sizing import SizedFor
 
-RECIPE = {**GO1_RECIPE, "gamma": 0.99, "normalize_rewards": True, "v_min": -2.0, "v_max": 4.0}
+RECIPE = recipes.FLASHSAC_GO2
 
 if __name__ == "__main__":
-    run_experiment(algo="flashsac", task="go2_joystick_flat", recipe=RECIPE, default_total_steps=100_000_000,
-                   sized_for=SizedFor("a 16-core H100 host", 16, 64))
+    run_experiment(**recipes.get("flashsac_go2").kwargs)

@@ -99,6 +99,17 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt  # unwinds through Inventory, which stops the servers this run started
 
 
+def _help() -> str:
+    from unilab_jax.apps import cli_help
+
+    return cli_help.text(__doc__, [cli_help.flag_lines("flags", ["robots", "speed", "total_steps", "seed", "logdir",
+                                                                  *cli_help.script_flags()],
+                                                       {"total_steps": TOTAL_STEPS})])
+
+
 if __name__ == "__main__":
+    from unilab_jax.apps.cli_help import exit_on_help
+
+    exit_on_help(_help)
     signal.signal(signal.SIGTERM, _terminate)
     app.run(main)

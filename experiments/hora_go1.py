@@ -8,17 +8,12 @@ that infers them from 30 frames of proprioceptive history; one command (see unil
 Sized for a 16-core H100 host (15 workers x 128 envs, as above; the flag defaults are 2 x 32).
 """
 
-from ppo_go1 import RECIPE as PPO_RECIPE
-
+from unilab_jax import recipes
 from unilab_jax.apps.hora_cli import run_hora
 
-# Go1's extrinsics (tasks/go1_joystick.py; the history variant appends them after the frames by default): floor
-# friction, joint friction loss, armature, torso COM, link masses, torso mass, default-pose offset and (enabled
-# here, +-10%) motor strength: 66 numbers.
-TASK_RECIPE = {"dr_motor_strength": (0.9, 1.1)}
-TEACHER_RECIPE = PPO_RECIPE  # HORA's encoder (256, 128) and 8-dim z are hora_teacher's defaults
-STUDENT_RECIPE = {}  # hora_student's defaults: 24-step horizon, lr 1e-3, 2 epochs x 4 minibatches
+TASK_RECIPE = recipes.HORA_GO1_TASK
+TEACHER_RECIPE = recipes.PPO_GO1
+STUDENT_RECIPE = recipes.HORA_GO1_STUDENT
 
 if __name__ == "__main__":
-    run_hora(task="go1_joystick_flat_hist", teacher_recipe=TEACHER_RECIPE, student_recipe=STUDENT_RECIPE,
-             task_recipe=TASK_RECIPE, default_teacher_steps=40_000_000, default_student_steps=10_000_000)
+    run_hora(**recipes.get("hora_go1").kwargs)

@@ -6,9 +6,10 @@ Sized for the 2-core dev VM: the flag defaults, 2 workers x 32 envs (``--num_wor
 the machine instead).
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
 
-RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "horizon": 32, "ent_coef": 0.0, "gamma": 0.98}
+RECIPE = recipes.PPO_CARTPOLE
 
 if __name__ == "__main__":
-    run_experiment(algo="ppo", task="cartpole_balance", recipe=RECIPE, default_total_steps=200_000)
+    run_experiment(**recipes.get("ppo_cartpole").kwargs)

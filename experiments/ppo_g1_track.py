@@ -13,11 +13,10 @@ termination) and ``eval/body_pos_error`` (m). Networks, horizon, epochs, learnin
 PPO's defaults; the recipe lists what differs.
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
-from unilab_jax.sizing import SizedFor
 
-RECIPE = {"ent_coef": 0.005, "init_log_std": -1.0}
+RECIPE = recipes.PPO_G1_TRACK
 
 if __name__ == "__main__":
-    run_experiment(algo="ppo", task="g1_track", recipe=RECIPE, default_total_steps=100_000_000,
-                   sized_for=SizedFor("a 16-core H100 host", 15, 128))
+    run_experiment(**recipes.get("ppo_g1_track").kwargs)

@@ -7,11 +7,10 @@ MuJoCo Playground's data regime for its Go1 PPO: 8192 envs, unrolls of 20 steps,
 per iteration (163,840 transitions; 8192 envs: ``run_mjx_experiment``'s default).
 """
 
-from ppo_go1 import RECIPE
-
+from unilab_jax import recipes
 from unilab_jax.apps.mjx_cli import run_mjx_experiment
 
-MJX_RECIPE = {**RECIPE, "horizon": 20, "num_epochs": 4, "num_minibatches": 32}
+MJX_RECIPE = recipes.PPO_GO1_MJX
 
 if __name__ == "__main__":
-    run_mjx_experiment(algo="ppo", task="go1_joystick_flat", recipe=MJX_RECIPE, default_total_steps=200_000_000)
+    run_mjx_experiment(**recipes.get("ppo_go1_mjx").kwargs)

@@ -14,8 +14,8 @@ success only (the episode then ends), as a physical robot's success detector giv
 adds the shaped term). Flags and recipe: ``unilab_jax.apps.robot_cli``.
 """
 
-from unilab_jax.apps.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
+from unilab_jax import recipes
+from unilab_jax.apps.robot_cli import run_robot_experiment
 
 if __name__ == "__main__":
-    run_robot_experiment("rlpd", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         observation="images", dense_reward=False)
+    run_robot_experiment(**recipes.get("rlpd_franka_peg").kwargs)

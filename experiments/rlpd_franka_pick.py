@@ -7,8 +7,8 @@ sampling, the critic ensemble, images and proprioception in the policy's observa
 success-only reward) on the pick-and-place task.
 """
 
-from unilab_jax.apps.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
+from unilab_jax import recipes
+from unilab_jax.apps.robot_cli import run_robot_experiment
 
 if __name__ == "__main__":
-    run_robot_experiment("rlpd", "robot_pick_place", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         observation="images", dense_reward=False)
+    run_robot_experiment(**recipes.get("rlpd_franka_pick").kwargs)

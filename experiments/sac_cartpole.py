@@ -14,11 +14,10 @@ target networks than SAC's default (tau 0.02 instead of 0.005) and lr 1e-3 make 
 steps instead of ~8k.
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
 
-RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
-          "publish_every": 32, "utd": 0.0125, "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3,
-          "alpha_learning_rate": 1e-3, "gamma": 0.98, "tau": 0.02}
+RECIPE = recipes.SAC_CARTPOLE
 
 if __name__ == "__main__":
-    run_experiment(algo="sac", task="cartpole_balance", recipe=RECIPE)  # 1M env steps: run_experiment's default
+    run_experiment(**recipes.get("sac_cartpole").kwargs)

@@ -7,8 +7,8 @@ and update-to-data ratio as ``rlpd_franka_peg.py``; SAC's twin critics and no de
 ``unilab_jax.apps.robot_cli``.
 """
 
-from unilab_jax.apps.robot_cli import MANIPULATION_RECIPE, run_robot_experiment
+from unilab_jax import recipes
+from unilab_jax.apps.robot_cli import run_robot_experiment
 
 if __name__ == "__main__":
-    run_robot_experiment("sac", "robot_peg_insertion", MANIPULATION_RECIPE, default_total_steps=36_000,
-                         observation="images", dense_reward=False)
+    run_robot_experiment(**recipes.get("sac_franka_peg").kwargs)

@@ -11,11 +11,10 @@ Learning shows while it trains: ``episode/success_rate`` is the success rate of 
 (stochastic) episodes.
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.robot_cli import run_robot_experiment
 
-RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 128, "utd": 0.5, "learning_starts": 500,
-          "replay_capacity": 200_000, "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3,
-          "alpha_learning_rate": 1e-3, "gamma": 0.95}
+RECIPE = recipes.SAC_FRANKA_PICK
 
 if __name__ == "__main__":
-    run_robot_experiment("sac", "robot_pick_place", RECIPE, default_total_steps=50_000)
+    run_robot_experiment(**recipes.get("sac_franka_pick").kwargs)

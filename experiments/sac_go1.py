@@ -12,13 +12,10 @@ midpoint), below PPO's 0.37: large initial noise keeps every step's clipped rewa
 never starts (bench/results/README.md).
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
-from unilab_jax.sizing import SizedFor
 
-RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 4096,
-          "utd": 8 / 1024, "replay_capacity": 2_097_152, "learning_starts": 16_384, "gamma": 0.97, "tau": 0.1,
-          "init_alpha": 0.001}
+RECIPE = recipes.SAC_GO1
 
 if __name__ == "__main__":
-    run_experiment(algo="sac", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
-                   sized_for=SizedFor("a 16-core H100 host", 16, 64))
+    run_experiment(**recipes.get("sac_go1").kwargs)

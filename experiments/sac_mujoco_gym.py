@@ -10,9 +10,10 @@ Sized for one GPU with a few cores: one gradient step per transition makes the l
 few environments suffice (``--utd_mode=hold`` holds the ratio on any machine). Not run to convergence here.
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
 
-RECIPE = {"batch_size": 256, "learning_starts": 10_000}
+RECIPE = recipes.SAC_MUJOCO_GYM
 
 if __name__ == "__main__":
-    run_experiment(algo="sac", task="gym:HalfCheetah-v5", recipe=RECIPE)  # 1M env steps: run_experiment's default
+    run_experiment(**recipes.get("sac_mujoco_gym").kwargs)

@@ -8,12 +8,10 @@ pendulum -150 to -200. Measured there at 20k env steps (~4.5k gradient steps, ``
 networks, tau 0.02), seeds 0-5: evaluation returns -143 to -167, ~7 s of CPU (tests/test_gym_training.py).
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
 
-RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
-          "publish_every": 32, "utd": 0.25, "learning_starts": 2_000, "replay_capacity": 200_000,
-          "actor_learning_rate": 1e-3, "critic_learning_rate": 1e-3, "alpha_learning_rate": 1e-3,
-          "gamma": 0.98, "tau": 0.02}
+RECIPE = recipes.SAC_PENDULUM
 
 if __name__ == "__main__":
-    run_experiment(algo="sac", task="gym:Pendulum-v1", recipe=RECIPE, default_total_steps=30_000)
+    run_experiment(**recipes.get("sac_pendulum").kwargs)

@@ -8,9 +8,8 @@ robot time); the actor is the gated K-step flow (``--config=flow_steps=K``, defa
 SAC's objective and automatic temperature (``unilab_jax/algos/offpolicy/sacflow.py``).
 """
 
-from sac_franka_pick import RECIPE
-
+from unilab_jax import recipes
 from unilab_jax.apps.robot_cli import run_robot_experiment
 
 if __name__ == "__main__":
-    run_robot_experiment("sacflow", "robot_pick_place", RECIPE, default_total_steps=50_000)
+    run_robot_experiment(**recipes.get("sacflow_franka_pick").kwargs)

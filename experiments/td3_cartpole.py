@@ -13,11 +13,10 @@ actors (3e-4), more exploration noise (0.2) or gamma 0.99 reached 150 about as o
 sac_cartpole.py); tau 0.02 (instead of 0.005) propagates values ~4x faster.
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
 
-RECIPE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "batch_size": 256, "updates_per_call": 32,
-          "publish_every": 32, "utd": 0.015, "actor_learning_rate": 1e-4, "critic_learning_rate": 1e-3, "gamma": 0.98,
-          "tau": 0.02}
+RECIPE = recipes.TD3_CARTPOLE
 
 if __name__ == "__main__":
-    run_experiment(algo="td3", task="cartpole_balance", recipe=RECIPE)  # 1M env steps: run_experiment's default
+    run_experiment(**recipes.get("td3_cartpole").kwargs)

@@ -9,13 +9,10 @@ critic ensemble of two on one GPU). Exploration std 0.2: the low end of FastTD3'
 [0.2, 0.8] -- with Go1's clipped reward large noise keeps every step's reward at 0 (ppo_go1.py).
 """
 
+from unilab_jax import recipes
 from unilab_jax.apps.cli import run_experiment
-from unilab_jax.sizing import SizedFor
 
-RECIPE = {"actor_hidden": (512, 256, 128), "critic_hidden": (1024, 512, 256), "batch_size": 8192,
-          "utd": 8 / 1024, "replay_capacity": 2_097_152, "learning_starts": 16_384, "gamma": 0.97, "tau": 0.1,
-          "explore_std": 0.2, "weight_decay": 0.1}
+RECIPE = recipes.TD3_GO1
 
 if __name__ == "__main__":
-    run_experiment(algo="td3", task="go1_joystick_flat", recipe=RECIPE, default_total_steps=50_000_000,
-                   sized_for=SizedFor("a 16-core H100 host", 16, 64))
+    run_experiment(**recipes.get("td3_go1").kwargs)

@@ -128,15 +128,17 @@ def test_onnx_and_numpy_exports_match_the_training_policy(kind, tmp_path):
 
 
 def test_every_locomotion_recipe_has_an_exporter():
-    """Each algorithm an experiments/*.py recipe trains on a walking task has an actor builder."""
+    """Each algorithm a recipe (unilab_jax.recipes, what experiments/*.py run) trains on a walking task has an actor
+    builder."""
     import re
 
+    from unilab_jax import recipes
+
     found = set()
-    for name in os.listdir(os.path.join(ROOT, "experiments")):
-        text = open(os.path.join(ROOT, "experiments", name)).read() if name.endswith(".py") else ""
+    for name in recipes.names():
         if re.search(r"go1|go2|g1", name) and "mjx" not in name:
-            found |= set(re.findall(r'algo="(\w+)"', text)) | ({"hora_teacher", "hora_student"} if "run_hora" in text
-                                                               else set())
+            r = recipes.get(name)
+            found |= {"hora_teacher", "hora_student"} if r.launcher == "run_hora" else {r.algo}
     assert found and found <= set(export.ACTORS), found - set(export.ACTORS)
 
 

@@ -27,6 +27,7 @@ LAYERS = [
     ("unilab_jax", 1), ("unilab_jax.core", 1), ("unilab_jax.core.*", 1), ("unilab_jax.nets", 1),
     ("unilab_jax.nets_temporal", 1), ("unilab_jax.config", 1), ("unilab_jax.metrics", 1),
     ("unilab_jax.fields", 1), ("unilab_jax.lazy", 1), ("unilab_jax.sizing", 1), ("unilab_mlx", 1), ("unilab_mlx.*", 1),
+    ("unilab_jax.recipes", 1),  # the experiments' recipes as data (names of algorithms and tasks, no imports)
     # the algorithm contract (pure standard library): the runtime reads a declaration's hooks through it
     ("unilab_jax.algos.contract", 1),
     # The command entry points kept at their documented names (python -m unilab_jax.play / .export /
@@ -52,8 +53,10 @@ LAYERS = [
     # L7: the applications wing: saved runs < play, export, record < the experiments' flags < the family CLIs
     ("unilab_jax.apps", 7.0), ("unilab_jax.apps.saved_run", 7.0),
     ("unilab_jax.apps.play", 7.1), ("unilab_jax.apps.export", 7.1), ("unilab_jax.apps.record", 7.1),
+    ("unilab_jax.apps.cli_help", 7.1),
     ("unilab_jax.apps.cli", 7.2),
     ("unilab_jax.apps.hora_cli", 7.3), ("unilab_jax.apps.mjx_cli", 7.3), ("unilab_jax.apps.robot_cli", 7.3),
+    ("unilab_jax.apps.api", 7.3),  # unilab_jax.train: the experiments' checks (cli.build_run), then the trainer
     # L8: experiment scripts
     ("experiments.*", 8),
 ]

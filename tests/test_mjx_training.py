@@ -103,6 +103,7 @@ def test_mjx_trainer_rejects_async_algorithms():
 @pytest.mark.parametrize("flag,message", [
     ("--num_workers=4", "--num_workers is a flag of the CPU-worker runtime"),
     ("--task=cartpole_balance", "tasks with an MJX variant"),
+    ("--wandb_project=x", "MJX loop logs to TensorBoard"),
     ("--config=batch_size=-1", "batch_size"),
 ])
 def test_mjx_experiment_flags_fail_early(tmp_path, flag, message):

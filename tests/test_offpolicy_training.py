@@ -109,6 +109,7 @@ def test_budget_below_learning_starts_ends_cleanly(tmp_path):
               "replay_capacity": 200_000}
     _, summary, rows = _train(tmp_path, "sac", recipe, 3_000, eval_envs=2)
     assert summary["updates"] == 0 and summary["env_steps"] >= 3_000 and not summary["interrupted"]
+    assert "no learner update" in summary["warning"] and "learning_starts=200000" in summary["warning"]
     assert "eval/return" in summary
     assert os.listdir(summary["checkpoints"]) and all("loss/critic_loss" not in r for r in rows)
     assert any("replay/size" in r for r in rows)  # warm-up rows are logged while waiting

@@ -1,4 +1,5 @@
-"""Recipes list only what differs from the defaults (experiments/*.py and bench/time_to_target.py's flags).
+"""Recipes list only what differs from the defaults (unilab_jax/recipes.py, which experiments/*.py run, and
+bench/time_to_target.py's flags).
 
 Each experiment script is run as ``__main__`` with its launcher (``run_experiment``, ``run_mjx_experiment``,
 ``run_robot_experiment``, ``run_hora``) replaced by a recorder, so what is checked is exactly what the script
@@ -23,6 +24,7 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXPERIMENTS = os.path.join(ROOT, "experiments")
+RECIPES = "unilab_jax.recipes"  # where the recipe dicts are written (the scripts pass recipes.get(name).kwargs)
 LAUNCHERS = {"run_experiment": "unilab_jax.apps.cli", "run_mjx_experiment": "unilab_jax.apps.mjx_cli",
              "run_robot_experiment": "unilab_jax.apps.robot_cli", "run_hora": "unilab_jax.apps.hora_cli"}
 # the launchers' parameters that are recipes (checked key by key) rather than values with a default
@@ -71,13 +73,18 @@ def _module(name: str) -> dict[str, Any]:
 def _dicts(module: str) -> dict[str, tuple[str, Any]]:
     """Top-level names of an experiment module: ``("dict", entries)`` for a dict display (entries: ``(key, value
     expression)`` or ``(None, splatted name)``), ``("import", (module, name))`` for a name from a sibling script."""
-    tree = ast.parse(open(os.path.join(EXPERIMENTS, module + ".py")).read())
+    path = os.path.join(ROOT, *RECIPES.split(".")) + ".py" if module == RECIPES else os.path.join(EXPERIMENTS,
+                                                                                                 module + ".py")
+    tree = ast.parse(open(path).read())
     out: dict[str, tuple[str, Any]] = {}
     for node in tree.body:
         if isinstance(node, ast.ImportFrom) and node.module and os.path.isfile(
                 os.path.join(EXPERIMENTS, node.module + ".py")):
             for alias in node.names:
                 out[alias.asname or alias.name] = ("import", (node.module, alias.name))
+        elif isinstance(node, ast.ImportFrom) and node.module == RECIPES:
+            for alias in node.names:
+                out[alias.asname or alias.name] = ("import", (RECIPES, alias.name))
         elif isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
             target = node.targets[0].id
             if isinstance(node.value, ast.Dict):
@@ -116,10 +123,13 @@ def _resolve(module: str, name: str, drop: tuple[str, str, str] | None = None) -
     return out, entries
 
 
-def _global_name(ns: dict[str, Any], value: dict) -> str:
-    names = [k for k, v in ns.items() if v is value]
-    assert names, "a recipe passed to a launcher must be a top-level name of the script"
-    return names[0]
+def _global_name(ns: dict[str, Any], value: dict) -> tuple[str, str]:
+    """(module, name) of the recipe dict ``value``: a top-level name of unilab_jax.recipes, else of the script."""
+    for module, names in ((RECIPES, _module(RECIPES)), (None, ns)):
+        found = [k for k, v in names.items() if v is value and not k.startswith("_")]
+        if found:
+            return module, found[0]
+    raise AssertionError("a recipe passed to a launcher must be a top-level name of unilab_jax.recipes or the script")
 
 
 def _defaults(launcher: str, arguments: dict[str, Any], param: str) -> Any:
@@ -154,18 +164,20 @@ def test_no_recipe_entry_equals_the_default_it_overrides(calls):
             recipe = given.get(param)
             if not recipe:
                 continue
-            name = _global_name(ns, recipe)
-            values, entries = _resolve(script[:-3], name)
+            module, name = _global_name(ns, recipe)
+            module = module or script[:-3]
+            values, entries = _resolve(module, name)
             assert values == recipe, f"{script} {name}: read back differently"
             defaults = _defaults(launcher, arguments, param)
             config = apply_overrides(defaults, recipe)
             for entry in entries:
-                without = apply_overrides(defaults, _resolve(script[:-3], name, drop=entry)[0])
+                without = apply_overrides(defaults, _resolve(module, name, drop=entry)[0])
                 needed[entry] = needed.get(entry, False) or without != config
     redundant = sorted(f"{module}.py {name}[{key!r}]" for (module, name, key), need in needed.items()
                        if not need)
     assert not redundant, f"recipe entries equal to the defaults they override: {redundant}"
-    assert {("fastsac_go1", "RECIPE", "v_min"), ("ppo_allegro_rotate", "TASK_RECIPE", "reset_press")} <= set(needed)
+    assert {(RECIPES, "FASTSAC_GO1", "v_min"), (RECIPES, "PPO_ALLEGRO_ROTATE_TASK", "reset_press"),
+            (RECIPES, "MANIPULATION_RECIPE", "utd")} <= set(needed)
 
 
 def test_no_launcher_argument_equals_its_default(calls):
@@ -200,3 +212,19 @@ def test_time_to_target_flags_differ_from_the_scripts_defaults(calls):
                 redundant.append(f"{config_name}: {flag}")
     assert checked and not redundant, f"time_to_target flags equal to the scripts' defaults: {redundant}"
 
+
+
+def test_every_script_runs_its_recipe_from_unilab_jax_recipes(calls):
+    """The scripts hold no recipe of their own: each passes its launcher ``recipes.get(script).kwargs``."""
+    from unilab_jax import recipes
+
+    assert set(recipes.names()) == {script[:-3] for script in calls}
+    for script, (launcher, given, _, _) in calls.items():
+        recipe = recipes.get(script)
+        assert recipe.launcher == launcher and dict(recipe.kwargs) == given, script
+    go1 = recipes.get("fastsac_go1")
+    assert (go1.algo, go1.task, go1.recipe, go1.total_steps) == ("fastsac", "go1_joystick_flat",
+                                                                 {"v_min": -0.5, "v_max": 1.5}, 50_000_000)
+    assert recipes.get("sac_cartpole").train_args()["total_steps"] == 1_000_000
+    with pytest.raises(ValueError, match="unknown recipe"):
+        recipes.get("nope")

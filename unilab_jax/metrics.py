@@ -41,9 +41,12 @@ WALKING = WalkingCriterion()
 
 
 class MetricLogger:
-    """Writes scalars to TensorBoard event files and ``metrics.jsonl`` under ``logdir``."""
+    """Writes scalars to TensorBoard event files and ``metrics.jsonl`` under ``logdir``, and to Weights & Biases
+    when ``wandb_project`` is given (``--wandb_project``; ``pip install 'unilab-jax[wandb]'``; ``WANDB_MODE=offline``
+    keeps the run under ``<logdir>/wandb`` for ``wandb sync``). W&B's x-axis is ``env_steps``: evaluations finish
+    after later training rows, which W&B's own step counter would drop."""
 
-    def __init__(self, logdir: str):
+    def __init__(self, logdir: str, wandb_project: str = "", wandb_config: dict | None = None):
         from tensorboardX import SummaryWriter
 
         os.makedirs(logdir, exist_ok=True)
@@ -51,6 +54,14 @@ class MetricLogger:
         self._tb = SummaryWriter(logdir=logdir, flush_secs=10)
         self._jsonl = open(os.path.join(logdir, "metrics.jsonl"), "a")  # noqa: SIM115 (closed in close())
         self._lock = threading.Lock()  # the learner and the evaluation thread both log
+        self._wandb = None
+        if wandb_project:
+            import wandb
+
+            self._wandb = wandb.init(project=wandb_project, name=os.path.basename(os.path.abspath(logdir)),
+                                     dir=logdir, config=wandb_config or {})
+            self._wandb.define_metric("env_steps")
+            self._wandb.define_metric("*", step_metric="env_steps")
 
     def log(self, step: int, scalars: dict[str, float]) -> None:
         clean = {k: float(v) for k, v in scalars.items() if v is not None and math.isfinite(float(v))}
@@ -59,6 +70,8 @@ class MetricLogger:
                 self._tb.add_scalar(k, v, global_step=step)
             self._jsonl.write(json.dumps({"step": int(step), **clean}) + "\n")
             self._jsonl.flush()
+            if self._wandb is not None:
+                self._wandb.log({**clean, "env_steps": int(step)})
 
     def image(self, step: int, tag: str, image) -> None:
         """An [H, W, 3] uint8 image in TensorBoard's images tab."""
@@ -69,31 +82,69 @@ class MetricLogger:
         self._tb.flush()
         self._tb.close()
         self._jsonl.close()
+        if self._wandb is not None:
+            self._wandb.finish()
+
+
+def evaluation_line(step: int, result: dict[str, float]) -> str:
+    """The line printed when an evaluation finishes: its return and the task's own evaluation numbers."""
+    shown = {k.removeprefix("eval/"): v for k, v in result.items()
+             if k.startswith("eval/") and not k.endswith(("wall_s", "skipped"))}
+    first = ["return"] if "return" in shown else []
+    parts = [f"{k} {shown[k]:.4g}" for k in first + sorted(k for k in shown if k != "return")]
+    return f"eval at step {int(step):,}: " + ("  ".join(parts) or "(no result)")
 
 
 class ProgressBar:
-    """A rich progress bar with env steps/s and ETA; plain log lines when stdout is not a terminal."""
+    """A rich progress bar with env steps/s and ETA; when stdout is not a terminal (a log file, a cluster job),
+    a plain line at the first update and then every ``PLAIN_EVERY_S`` seconds, from a timer thread, so lines keep
+    coming while the learner compiles or waits (the step count then stands still)."""
+
+    PLAIN_EVERY_S = 10.0
 
     def __init__(self, total: int, start: int = 0):
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+        self._plain = not sys.stdout.isatty()
         self._progress = Progress(TextColumn("[bold]training"), BarColumn(), MofNCompleteColumn(),
                                   TextColumn("{task.fields[rate]} steps/s"), TextColumn("return {task.fields[ret]}"),
-                                  TimeRemainingColumn(), disable=not sys.stdout.isatty())
+                                  TimeRemainingColumn(), disable=self._plain)
         self._task = self._progress.add_task("train", total=total, completed=start, rate="-", ret="-")
         self._progress.start()
-        self._last_print = 0.0
-        self._start_step = start
+        self._start_step = self._step = start
+        self._total = total
+        self._ret = "-"
         self._t0 = time.time()
+        self._lock = threading.Lock()
+        self._printed = False
+        self._closed = threading.Event()
+        self._timer = None
+        if self._plain:
+            self._timer = threading.Thread(target=self._tick, name="progress", daemon=True)
+            self._timer.start()
+
+    def _line(self) -> str:
+        rate = (self._step - self._start_step) / max(time.time() - self._t0, 1e-9)
+        return f"step {self._step:,}/{self._total:,}  {rate:,.0f} env steps/s  episode return {self._ret}"
+
+    def _tick(self) -> None:
+        while not self._closed.wait(self.PLAIN_EVERY_S):
+            with self._lock:
+                print(self._line(), flush=True)
 
     def update(self, step: int, episode_return: float | None) -> None:
-        elapsed = max(time.time() - self._t0, 1e-9)
-        rate = (step - self._start_step) / elapsed
-        ret = f"{episode_return:.3f}" if episode_return is not None else "-"
-        self._progress.update(self._task, completed=step, rate=f"{rate:,.0f}", ret=ret)
-        if not sys.stdout.isatty() and time.time() - self._last_print > 10.0:
-            self._last_print = time.time()
-            print(f"step {step:,}  {rate:,.0f} env steps/s  episode return {ret}", flush=True)
+        with self._lock:
+            self._step = step
+            if episode_return is not None:
+                self._ret = f"{episode_return:.3f}"
+            rate = (step - self._start_step) / max(time.time() - self._t0, 1e-9)
+            self._progress.update(self._task, completed=step, rate=f"{rate:,.0f}", ret=self._ret)
+            if self._plain and not self._printed:  # the first line at once, then the timer's
+                self._printed = True
+                print(self._line(), flush=True)
 
     def close(self) -> None:
+        self._closed.set()
+        if self._timer is not None:
+            self._timer.join()
         self._progress.stop()

@@ -96,8 +96,39 @@ flags.DEFINE_string("ray_address", "", "off-policy: run rollout workers on every
                     "HOST:PORT of its head (empty: this host only; Ray is not imported)")
 flags.DEFINE_integer("ray_workers_per_host", 0, "with --ray_address: worker processes on each node other than the "
                      "learner's (0: --num_workers)")
+flags.DEFINE_string("wandb_project", "", "also log to this Weights & Biases project (pip install "
+                    "'unilab-jax[wandb]'; WANDB_MODE=offline keeps the run under <logdir>/wandb; empty: no W&B)")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
+
+
+# The flags every run reads, and those only off-policy runs read (--help lists each script's own).
+RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker", "seed", "logdir", "resume",
+             "eval_every", "eval_envs", "checkpoint_every", "video_every", "serial", "pin_cpus", "devices",
+             "wandb_project", "config", "task_config")
+REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
+                "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
+
+
+def run_flags(algo: str) -> list[str]:
+    """The shared flags a run of ``algo`` reads: the replay flags only for an off-policy algorithm."""
+    from unilab_jax import algos
+
+    return [*RUN_FLAGS, *(REPLAY_FLAGS if algos.get(algo).BUFFER == "replay" else ())]
+
+
+def help_text(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
+              default_total_steps: int, flag_names: list[str] | None = None, extra_flags: tuple[str, ...] = (),
+              defaults: Mapping[str, Any] | None = None) -> str:
+    """An experiment's ``--help``: its docstring, the run's flags, the algorithm's and the task's config fields."""
+    from unilab_jax.apps import cli_help
+
+    task_name = cli_help.requested_task(task)
+    names = [*(run_flags(algo) if flag_names is None else flag_names), *extra_flags]
+    return cli_help.text(cli_help.main_doc(), [
+        cli_help.flag_lines("flags", names, {"task": task, "total_steps": default_total_steps, **(defaults or {})}),
+        cli_help.algorithm_lines(algo, recipe),
+        cli_help.task_lines(task_name, task_recipe if task_name == task else {})])
 
 
 class FlagError(ValueError):
@@ -114,152 +145,170 @@ def _learner_on_cpu(platform: str) -> bool:
     return mx.default_device().type == mx.cpu
 
 
-def size_for_machine(sized_for: sizing.SizedFor | None) -> None:
-    """Resolves ``auto`` in --num_workers / --envs_per_worker (integers in FLAGS afterwards) and prints the
+def _given(opts: Any, name: str) -> bool:
+    """Whether option ``name`` was set by the user (a flag on the command line, a keyword of ``train``)."""
+    return FLAGS[name].present if opts is FLAGS else name in getattr(opts, "given", ())
+
+
+def size_for_machine(sized_for: sizing.SizedFor | None, opts: Any = FLAGS) -> None:
+    """Resolves ``auto`` in --num_workers / --envs_per_worker (integers in ``opts`` afterwards) and prints the
     choice. --envs_per_worker left at its default is auto when --num_workers is."""
-    auto_workers = FLAGS.num_workers == sizing.AUTO
-    auto_envs = FLAGS.envs_per_worker == sizing.AUTO or (auto_workers and not FLAGS["envs_per_worker"].present)
+    auto_workers = opts.num_workers == sizing.AUTO
+    auto_envs = opts.envs_per_worker == sizing.AUTO or (auto_workers and not _given(opts, "envs_per_worker"))
     if not (auto_workers or auto_envs):
         return
     cores, recipe = sizing.available_cores(), sized_for or DEV_VM
     if auto_workers:
-        FLAGS.num_workers = sizing.auto_num_workers(cores, _learner_on_cpu(FLAGS.platform))
-    if FLAGS.num_workers < 1:
-        raise FlagError(f"--num_workers must be at least 1, got {FLAGS.num_workers}")
+        opts.num_workers = sizing.auto_num_workers(cores, _learner_on_cpu(opts.platform))
+    if opts.num_workers < 1:
+        raise FlagError(f"--num_workers must be at least 1, got {opts.num_workers}")
     if auto_envs:
-        FLAGS.envs_per_worker = sizing.auto_envs_per_worker(recipe.total_envs, FLAGS.num_workers)
-    workers = f"{FLAGS.num_workers} worker{'s' if FLAGS.num_workers != 1 else ''}"
-    print(f"sized for this machine: {workers} x {FLAGS.envs_per_worker} envs ({cores} cores; the recipe was sized "
+        opts.envs_per_worker = sizing.auto_envs_per_worker(recipe.total_envs, opts.num_workers)
+    workers = f"{opts.num_workers} worker{'s' if opts.num_workers != 1 else ''}"
+    print(f"sized for this machine: {workers} x {opts.envs_per_worker} envs ({cores} cores; the recipe was sized "
           f"for {recipe})", flush=True)
 
 
 def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
               default_total_steps: int,
-              sized_for: sizing.SizedFor | None = None) -> tuple[Any, Any, Any, dict[str, Any]]:
+              sized_for: sizing.SizedFor | None = None, opts: Any = FLAGS) -> tuple[Any, Any, Any, dict[str, Any]]:
     """Validates every flag; returns (RunConfig, algorithm module, algorithm config, task overrides).
-    ``sized_for``: what the recipe was tuned on (``auto`` sizing splits its environments; default DEV_VM)."""
+    ``sized_for``: what the recipe was tuned on (``auto`` sizing splits its environments; default DEV_VM).
+    ``opts``: the parsed flags, or an object with the same attributes (``unilab_jax.apps.api.train``'s options;
+    ``config`` / ``task_config`` there may be dicts)."""
     import tasks
     from unilab_jax import algos
     from unilab_jax.algos import contract
     from unilab_jax.config import apply_overrides, parse_overrides
     from unilab_jax.training.trainer import RunConfig
 
-    if FLAGS.platform not in PLATFORMS:
-        raise FlagError(f"--platform={FLAGS.platform!r}: choose one of {PLATFORMS}")
+    if opts.platform not in PLATFORMS:
+        raise FlagError(f"--platform={opts.platform!r}: choose one of {PLATFORMS}")
     try:
-        if FLAGS.platform == "jax":
+        if opts.platform == "jax":
             import jax  # noqa: F401
         else:
             import unilab_mlx  # noqa: F401
     except ImportError as e:
-        raise FlagError(f"--platform={FLAGS.platform}: its packages are not installed ({e}); "
-                        f"pip install 'unilab-jax[{FLAGS.platform}]'") from e
-    if FLAGS.video_every > 0:
+        raise FlagError(f"--platform={opts.platform}: its packages are not installed ({e}); "
+                        f"pip install 'unilab-jax[{opts.platform}]'") from e
+    try:
+        module = algos.get(algo)
+    except ValueError as e:
+        raise FlagError(str(e)) from e
+    if opts.video_every > 0:
         _check_video()  # first: the headless GL choice must precede every import of mujoco (the task check's too)
-    task_name = FLAGS.task or task
+    task_name = opts.task or task
     try:
         tasks.default_config(task_name)  # unknown names; a gym:ENV_ID that cannot be made or driven
     except ValueError as e:
         raise FlagError(f"--task={task_name!r}: {e}") from e
-    size_for_machine(sized_for)
+    size_for_machine(sized_for, opts)
     for name in ("num_workers", "envs_per_worker", "eval_envs"):
-        if getattr(FLAGS, name) < 1:
-            raise FlagError(f"--{name} must be at least 1, got {getattr(FLAGS, name)}")
-    total = FLAGS.total_steps if FLAGS.total_steps is not None else default_total_steps
+        if getattr(opts, name) < 1:
+            raise FlagError(f"--{name} must be at least 1, got {getattr(opts, name)}")
+    total = opts.total_steps if opts.total_steps is not None else default_total_steps
     if total < 1:
         raise FlagError(f"--total_steps must be positive, got {total}")
     for name in ("eval_every", "checkpoint_every", "video_every"):
-        if getattr(FLAGS, name) < 0:
-            raise FlagError(f"--{name} must be >= 0, got {getattr(FLAGS, name)}")
-    module = algos.get(algo)
-    config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(FLAGS.config))
-    task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
+        if getattr(opts, name) < 0:
+            raise FlagError(f"--{name} must be >= 0, got {getattr(opts, name)}")
+    config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(opts.config))
+    task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(opts.task_config)}
     task_config = apply_overrides(tasks.default_config(task_name), task_overrides)  # rejects unknown keys
     task_overrides = {k: getattr(task_config, k) for k in task_overrides}
     length = getattr(task_config, "episode_length", None)  # every task's; evaluations play whole episodes
     if isinstance(length, int) and length < 1:
         raise FlagError(f"--task_config episode_length must be positive, got {length}")
     try:  # the algorithm's own flag checks (platforms, task kind)
-        contract.hooks(module).check_run(FLAGS.platform, task_config, config)
+        contract.hooks(module).check_run(opts.platform, task_config, config)
     except ValueError as e:
         raise FlagError(str(e)) from e
-    if FLAGS.replay_dir and module.BUFFER != "replay":
+    if opts.replay_dir and module.BUFFER != "replay":
         raise FlagError(f"--replay_dir: {algo} does not use a replay buffer")
-    if FLAGS.replay_on_device == "on" and (module.BUFFER != "replay" or FLAGS.platform != "jax" or FLAGS.replay_dir):
+    if opts.replay_on_device == "on" and (module.BUFFER != "replay" or opts.platform != "jax" or opts.replay_dir):
         raise FlagError("--replay_on_device=on needs an off-policy algorithm, --platform=jax and no --replay_dir")
-    if not 0.0 <= FLAGS.replay_hot_fraction <= 1.0:
-        raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {FLAGS.replay_hot_fraction}")
+    for name, choices in (("replay_on_device", ("auto", "on", "off")), ("utd_mode", ("hold", "free"))):
+        if getattr(opts, name) not in choices:  # absl checks the flags; train()'s keywords are checked here
+            raise FlagError(f"--{name}={getattr(opts, name)!r}: choose one of {choices}")
+    if not 0.0 <= opts.replay_hot_fraction <= 1.0:
+        raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {opts.replay_hot_fraction}")
     usable = len(os.sched_getaffinity(0))
-    if not -1 <= FLAGS.pin_cpus < usable:
+    if not -1 <= opts.pin_cpus < usable:
         raise FlagError(f"--pin_cpus must be -1 (off) or leave the workers at least one of the {usable} usable "
-                        f"cores, got {FLAGS.pin_cpus}")
-    if FLAGS.utd_window < 0:
-        raise FlagError(f"--utd_window must be >= 0, got {FLAGS.utd_window}")
-    if FLAGS.utd_window and (module.BUFFER != "replay" or FLAGS.utd_mode != "hold"):
+                        f"cores, got {opts.pin_cpus}")
+    if opts.utd_window < 0:
+        raise FlagError(f"--utd_window must be >= 0, got {opts.utd_window}")
+    if opts.utd_window and (module.BUFFER != "replay" or opts.utd_mode != "hold"):
         raise FlagError("--utd_window needs an off-policy algorithm and --utd_mode=hold")
-    if FLAGS.replay_disk_gb <= 0 or FLAGS.replay_chunk_rows < 0:
+    if opts.replay_disk_gb <= 0 or opts.replay_chunk_rows < 0:
         raise FlagError("--replay_disk_gb must be positive and --replay_chunk_rows >= 0")
-    if module.BUFFER == "replay" and not FLAGS.ray_address:  # the trainer's split of replay_capacity (Ray: per host)
+    if module.BUFFER == "replay" and not opts.ray_address:  # the trainer's split of replay_capacity (Ray: per host)
         from unilab_jax.runtime.buffers import ReplayBuffer
 
-        rows = FLAGS.num_workers * ReplayBuffer.worker_rows(max(config.replay_capacity // FLAGS.num_workers, 1),
-                                                            FLAGS.envs_per_worker)
+        rows = opts.num_workers * ReplayBuffer.worker_rows(max(config.replay_capacity // opts.num_workers, 1),
+                                                            opts.envs_per_worker)
         if max(config.learning_starts, config.batch_size) > rows:
             raise FlagError(f"learning_starts/batch_size ({max(config.learning_starts, config.batch_size)}) exceed "
-                            f"the replay capacity ({rows} transitions over {FLAGS.num_workers} workers): raise "
+                            f"the replay capacity ({rows} transitions over {opts.num_workers} workers): raise "
                             "replay_capacity")
-    batch = config.horizon * FLAGS.num_workers * FLAGS.envs_per_worker
+    batch = config.horizon * opts.num_workers * opts.envs_per_worker
     if module.BUFFER == "trajectory" and batch < config.num_minibatches:
         raise FlagError(f"a batch of {batch} transitions cannot make {config.num_minibatches} minibatches")
-    if FLAGS.devices != "1":
-        if FLAGS.platform != "jax":
-            raise FlagError(f"--devices={FLAGS.devices}: data-parallel learners are JAX's (--platform=jax)")
+    if opts.devices != "1":
+        if opts.platform != "jax":
+            raise FlagError(f"--devices={opts.devices}: data-parallel learners are JAX's (--platform=jax)")
         from unilab_jax.training import sharding
 
         try:
-            sharding.check_run(FLAGS.devices, FLAGS.platform, config, module.BUFFER, FLAGS.num_workers,
-                               FLAGS.envs_per_worker)
+            sharding.check_run(opts.devices, opts.platform, config, module.BUFFER, opts.num_workers,
+                               opts.envs_per_worker)
         except ValueError as e:
             raise FlagError(str(e)) from e
-    if FLAGS.ray_address or FLAGS.ray_workers_per_host:
-        _check_ray_flags(module)
-    logdir = FLAGS.logdir or os.path.join("runs", f"{algo}_{task_name}_s{FLAGS.seed}")
-    if FLAGS.resume and not os.path.isdir(os.path.join(logdir, "checkpoints")):
+    if opts.wandb_project:
+        import importlib.util
+
+        if importlib.util.find_spec("wandb") is None:
+            raise FlagError("--wandb_project: wandb is not installed; pip install 'unilab-jax[wandb]'")
+    if opts.ray_address or opts.ray_workers_per_host:
+        _check_ray_flags(module, opts)
+    logdir = opts.logdir or os.path.join("runs", f"{algo}_{task_name}_s{opts.seed}")
+    if opts.resume and not os.path.isdir(os.path.join(logdir, "checkpoints")):
         raise FlagError(f"--resume: no checkpoints under {logdir!r}")
     try:
         os.makedirs(logdir, exist_ok=True)
     except OSError as e:
         raise FlagError(f"--logdir={logdir!r} cannot be created: {e}") from e
-    run = RunConfig(algo=algo, task=task_name, platform=FLAGS.platform, num_workers=FLAGS.num_workers,
-                    envs_per_worker=FLAGS.envs_per_worker, total_steps=total, seed=FLAGS.seed, logdir=logdir,
-                    resume=FLAGS.resume, eval_every=FLAGS.eval_every, eval_envs=FLAGS.eval_envs,
-                    checkpoint_every=FLAGS.checkpoint_every, serial=FLAGS.serial, replay_dir=FLAGS.replay_dir,
-                    replay_disk_gb=FLAGS.replay_disk_gb, replay_hot_fraction=FLAGS.replay_hot_fraction,
-                    replay_chunk_rows=FLAGS.replay_chunk_rows, replay_on_device=FLAGS.replay_on_device,
-                    utd_mode=FLAGS.utd_mode, utd_window=FLAGS.utd_window, pin_cpus=FLAGS.pin_cpus,
-                    video_every=FLAGS.video_every, devices=FLAGS.devices, ray_address=FLAGS.ray_address,
-                    ray_workers_per_host=FLAGS.ray_workers_per_host)
+    run = RunConfig(algo=algo, task=task_name, platform=opts.platform, num_workers=opts.num_workers,
+                    envs_per_worker=opts.envs_per_worker, total_steps=total, seed=opts.seed, logdir=logdir,
+                    resume=opts.resume, eval_every=opts.eval_every, eval_envs=opts.eval_envs,
+                    checkpoint_every=opts.checkpoint_every, serial=opts.serial, replay_dir=opts.replay_dir,
+                    replay_disk_gb=opts.replay_disk_gb, replay_hot_fraction=opts.replay_hot_fraction,
+                    replay_chunk_rows=opts.replay_chunk_rows, replay_on_device=opts.replay_on_device,
+                    utd_mode=opts.utd_mode, utd_window=opts.utd_window, pin_cpus=opts.pin_cpus,
+                    video_every=opts.video_every, devices=opts.devices, ray_address=opts.ray_address,
+                    ray_workers_per_host=opts.ray_workers_per_host, wandb_project=opts.wandb_project)
     return run, module, config, task_overrides
 
 
-def _check_ray_flags(module: Any) -> None:
+def _check_ray_flags(module: Any, opts: Any = FLAGS) -> None:
     """``--ray_address`` / ``--ray_workers_per_host`` checks (no connection is made here)."""
     import importlib.util
 
     from unilab_jax.runtime.ray_pool import check_address
 
-    if not FLAGS.ray_address:
+    if not opts.ray_address:
         raise FlagError("--ray_workers_per_host needs --ray_address")
     try:
-        check_address(FLAGS.ray_address)
+        check_address(opts.ray_address)
     except ValueError as e:
         raise FlagError(str(e)) from e
     if module.BUFFER != "replay":
         raise FlagError("--ray_address: Ray rollouts carry replay transitions (off-policy algorithms only)")
-    if FLAGS.serial:
+    if opts.serial:
         raise FlagError("--ray_address runs worker processes on every host: it cannot be combined with --serial")
-    if FLAGS.ray_workers_per_host < 0:
-        raise FlagError(f"--ray_workers_per_host must be >= 0, got {FLAGS.ray_workers_per_host}")
+    if opts.ray_workers_per_host < 0:
+        raise FlagError(f"--ray_workers_per_host must be >= 0, got {opts.ray_workers_per_host}")
     if importlib.util.find_spec("ray") is None:
         raise FlagError("--ray_address: Ray is not installed; pip install 'unilab-jax[ray]'")
 
@@ -280,8 +329,21 @@ def _check_video() -> None:
                         "libegl-mesa0 libgl1-mesa-dri libopengl0 (MUJOCO_GL=egl) or libosmesa6 (MUJOCO_GL=osmesa)")
 
 
+TENSORBOARD_HINT = "pip install 'unilab-jax[tensorboard]' for the viewer"
+
+
+def report(summary: Mapping[str, Any]) -> None:
+    """Prints a finished run's summary, where its logs are and how to view them, and its warning (a run that
+    made no learner update, or fewer than asked) last, where it is seen."""
+    print(json.dumps(summary, indent=2))
+    print(f"logs: {summary['logdir']}  (view: tensorboard --logdir {summary['logdir']}; {TENSORBOARD_HINT})")
+    print(f"checkpoints: {summary['checkpoints']}")
+    if summary.get("warning"):
+        print(f"warning: {summary['warning']}", flush=True)
+
+
 def launch(validate: Callable[[], Any], train: Callable[[Any], None],
-           errors: tuple[type[Exception], ...] = ()) -> None:
+           errors: tuple[type[Exception], ...] = (), help: Callable[[], str] | None = None) -> None:
     """The absl ``main`` of every experiment launcher: quiet logging unless ``-v`` is given (orbax logs every
     save at INFO), no stray arguments, ``validate()`` -- a flag or config error (or one of ``errors``) exits
     with code 2 and a message before anything starts -- then ``train(validate())``, where a damaged checkpoint
@@ -315,6 +377,10 @@ def launch(validate: Callable[[], Any], train: Callable[[Any], None],
             sys.stderr.flush()
             os._exit(0)
 
+    if help is not None:  # before absl: its --help lists no flag of ours and exits 1
+        from unilab_jax.apps import cli_help
+
+        cli_help.exit_on_help(help)
     app.run(main)
 
 
@@ -337,11 +403,9 @@ def run_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = None
     def train(parts: tuple) -> None:
         from unilab_jax.training.trainer import Trainer
 
-        summary = new_trainer(Trainer, *parts, start_time=PROCESS_START).train()
-        print(json.dumps(summary, indent=2))
-        print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
-        print(f"checkpoints: {summary['checkpoints']}")
+        report(new_trainer(Trainer, *parts, start_time=PROCESS_START).train())
 
     if sized_for is not None:
         FLAGS.set_default("num_workers", sizing.AUTO)
-    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps, sized_for), train)
+    launch(lambda: build_run(algo, task, recipe or {}, task_recipe or {}, default_total_steps, sized_for), train,
+           help=lambda: help_text(algo, task, recipe or {}, task_recipe or {}, default_total_steps))

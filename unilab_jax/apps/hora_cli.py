@@ -200,5 +200,17 @@ def run_hora(task: str, teacher_recipe: Mapping[str, Any], student_recipe: Mappi
         print("hora:", json.dumps(_compare(plan), indent=2))
         print(f"logs: {os.path.abspath(plan['root'])}")
 
+    def help_text() -> str:
+        from unilab_jax.apps import cli_help
+
+        task_name = cli_help.requested_task(task)
+        names = [*cli.run_flags("hora_teacher"), *cli_help.flags_of(__name__)]
+        return cli_help.text(cli_help.main_doc(), [
+            cli_help.flag_lines("flags", names, {"task": task, "teacher_steps": default_teacher_steps,
+                                                 "student_steps": default_student_steps}),
+            cli_help.algorithm_lines("hora_teacher", teacher_recipe, "stage 1: hora_teacher"),
+            cli_help.algorithm_lines("hora_student", student_recipe, "stage 2: hora_student", "--student_config"),
+            cli_help.task_lines(task_name, task_recipe if task_name == task else {})])
+
     cli.launch(lambda: {**_plan(task, teacher_recipe, student_recipe, task_recipe, default_teacher_steps,
-                                default_student_steps), "compare_metric": compare_metric}, train)
+                                default_student_steps), "compare_metric": compare_metric}, train, help=help_text)

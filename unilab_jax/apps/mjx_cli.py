@@ -10,7 +10,6 @@ The shared experiment flags of ``unilab_jax.apps.cli`` (``--total_steps``, ``--s
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Mapping
 from typing import Any
@@ -42,6 +41,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     given = [name for name in RUNTIME_ONLY if name in FLAGS and FLAGS[name].present]
     if given:
         raise cli.FlagError(f"--{given[0]} is a flag of the CPU-worker runtime; MJX runs take --num_envs")
+    if FLAGS.wandb_project:
+        raise cli.FlagError("--wandb_project: the MJX loop logs to TensorBoard and metrics.jsonl only")
     if FLAGS.platform != "jax":
         raise cli.FlagError(f"--platform={FLAGS.platform!r}: MJX runs need jax")
     if FLAGS.devices != "1":
@@ -91,8 +92,10 @@ def run_mjx_experiment(algo: str, task: str, recipe: Mapping[str, Any] | None = 
         return make_trainer(run, module, config, task_overrides, start_time=cli.PROCESS_START)
 
     def train(trainer: Any) -> None:
-        summary = trainer.train()
-        print(json.dumps(summary, indent=2))
-        print(f"logs: {summary['logdir']}  (tensorboard --logdir {summary['logdir']})")
+        cli.report(trainer.train())
 
-    cli.launch(validate, train, errors=(ValueError,))
+    names = ["platform", "task", "total_steps", "seed", "logdir", "eval_every", "eval_envs", "devices", "config",
+             "task_config", "num_envs", "iterations_per_call", "max_seconds"]
+    cli.launch(validate, train, errors=(ValueError,), help=lambda: cli.help_text(
+        algo, task, recipe or {}, task_recipe or {}, default_total_steps, flag_names=names,
+        defaults={"num_envs": default_num_envs, "iterations_per_call": default_iterations_per_call}))

@@ -51,16 +51,9 @@ from typing import Any
 from absl import flags
 
 from unilab_jax import algos
-from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, launch
+from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, help_text, launch, report
+from unilab_jax.recipes import MANIPULATION_RECIPE  # noqa: F401 (the manipulation scripts' recipe, kept here too)
 
-# The manipulation recipe of sac_franka_peg, rlpd_franka_peg and rlpd_franka_pick: small networks and utd 4 fit a
-# 2-core CPU (``--config utd=20``: the RLPD paper's ratio, for a GPU); the policy sees the object state. A small
-# initial temperature: success ends an episode, and the entropy bonus carried in the soft target (alpha x entropy
-# / (1 - gamma), ~24 at RLPD's init_alpha 1 on peg insertion) outweighed the success bonus, so learners avoided
-# finishing.
-MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), "batch_size": 128,
-                       "updates_per_call": 16, "publish_every": 16, "utd": 4.0, "learning_starts": 300,
-                       "replay_capacity": 200_000, "gamma": 0.95, "init_alpha": 0.01}
 STATE_TASK = {"policy_state": True}
 IMAGE_TASK = {"cameras": ("front",), "image_size": 32, "frame_stack": 3}
 # With images, on top of the algorithm's recipe: an encoder of two strided 8-channel convolutions and utd 0.5, so
@@ -224,8 +217,7 @@ def _train(validated: tuple, dense_reward: bool) -> None:
     summary["robot_s"] = summary["env_steps"] / found[0].spec.control_hz + demo_s
     with open(os.path.join(run.logdir, "summary.json"), "w") as f:
         json.dump(summary, f, indent=2)
-    print(json.dumps(summary, indent=2))
-    print(f"logs: {summary['logdir']}  checkpoints: {summary['checkpoints']}")
+    report(summary)
 
 
 def _check_cameras(found: list, task_config: Any, config: Any) -> None:
@@ -248,6 +240,13 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt  # unwinds through Inventory, which stops the servers this run started
 
 
+def _own_flags() -> list[str]:
+    """The flags this module adds to the shared ones (``--robots``, ``--speed`` ...)."""
+    from unilab_jax.apps import cli_help
+
+    return cli_help.flags_of(__name__)
+
+
 def run_robot_experiment(algo: str, task: str, recipe: Mapping[str, Any], default_total_steps: int,
                          task_recipe: Mapping[str, Any] | None = None, dense_reward: bool = True,
                          observation: str = "proprio") -> None:
@@ -255,4 +254,8 @@ def run_robot_experiment(algo: str, task: str, recipe: Mapping[str, Any], defaul
     ``observation``: the default of ``--observation`` (``OBSERVATIONS``; ``task_recipe`` goes on top)."""
     signal.signal(signal.SIGTERM, _terminate)
     launch(lambda: _validate(algo, task, recipe, task_recipe or {}, default_total_steps, observation),
-           lambda validated: _train(validated, dense_reward), errors=(ValueError,))  # config checks: exit 2
+           lambda validated: _train(validated, dense_reward), errors=(ValueError,),  # config checks: exit 2
+           help=lambda: help_text(algo, task, recipe,
+                                  {**ROBOT_TASK, **OBSERVATIONS[observation], **(task_recipe or {})},
+                                  default_total_steps, extra_flags=tuple(_own_flags()),
+                                  defaults={"observation": observation, "dense_reward": dense_reward}))

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from unilab_jax.metrics import evaluation_line
 from unilab_jax.runtime.ring import StopRequested
 
 log = logging.getLogger(__name__)
@@ -268,6 +269,7 @@ class AsyncEvaluator:
         result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0,
                        "eval/skipped": float(self.skipped)})
         tr.logger.log(counters["env_steps"], result)
+        print(evaluation_line(counters["env_steps"], result), flush=True)
         return result
 
     def close(self, cancel: bool = False) -> dict[str, float]:

@@ -239,6 +239,23 @@ class ReplaySource:
             return True
         return False
 
+    def shortfall(self, env_steps: int) -> str | None:
+        """Why this run made fewer gradient steps than its update-to-data ratio asks, or None: no update at all
+        before ``learning_starts`` (the warm-up), or a learner more than 10% (and one call) below ``utd``."""
+        cfg = self._cfg
+        if self._learn_start is None:
+            return (f"no learner update: off-policy learning starts once the replay buffer holds "
+                    f"max(learning_starts={int(cfg.learning_starts)}, batch_size={int(cfg.batch_size)}) = "
+                    f"{self._need:,} transitions, and the run took {env_steps:,} env steps; raise --total_steps "
+                    f"or lower learning_starts (--config learning_starts=N)")
+        done = self._consumed * cfg.updates_per_call
+        owed = cfg.utd * max(env_steps - self._learn_start, 0)
+        if done < 0.9 * owed and owed - done >= cfg.updates_per_call:
+            return (f"fewer learner updates than asked: {done:,} gradient steps where utd={cfg.utd:g} asks "
+                    f"{owed:,.0f} for the {env_steps - self._learn_start:,} env steps since learning started "
+                    f"(the learner fell behind the workers; --utd_mode=hold keeps the ratio)")
+        return None
+
     def _persist(self) -> None:
         """Copies every committed ring row to the store and commits them (the rings must be open)."""
         with self._lock:

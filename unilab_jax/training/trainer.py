@@ -102,6 +102,25 @@ class RunConfig:
     # (0: num_workers). unilab_jax/runtime/ray_pool.py.
     ray_address: str = ""
     ray_workers_per_host: int = 0
+    wandb_project: str = ""  # also log to this Weights & Biases project (metrics.MetricLogger; "" = no W&B)
+
+    def __post_init__(self) -> None:
+        """The checks that need nothing started: names that exist, counts that can run (``apps.cli.build_run``
+        checks the rest, against the algorithm's and task's configs)."""
+        if self.algo not in algos.names():
+            raise ValueError(f"RunConfig: unknown algorithm {self.algo!r}; registered: {algos.names()}")
+        if not self.task.startswith("gym:") and self.task not in tasks.names():
+            raise ValueError(f"RunConfig: unknown task {self.task!r}; registered: {tasks.names()} (or gym:ENV_ID)")
+        for name in ("num_workers", "envs_per_worker", "total_steps", "eval_envs"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise ValueError(f"RunConfig: {name} must be a positive integer, got {getattr(self, name)!r}")
+        for name in ("eval_every", "checkpoint_every", "video_every", "utd_window", "ray_workers_per_host"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"RunConfig: {name} must be >= 0, got {getattr(self, name)!r}")
+        for name, choices in (("platform", ("jax", "mlx")), ("utd_mode", ("hold", "free")),
+                              ("replay_on_device", ("auto", "on", "off"))):
+            if getattr(self, name) not in choices:
+                raise ValueError(f"RunConfig: {name} must be one of {choices}, got {getattr(self, name)!r}")
 
 
 def _learner_platform(platform: str) -> Any:
@@ -140,7 +159,9 @@ class Trainer:
             self.parallel = sharding.for_run(self.learner, run, algo_config, algo_module.BUFFER)
             self.learner = self.parallel or self.learner
         self.batch_xp = self.parallel or self.xp  # what the batch sources place host arrays with (from_numpy)
-        self.logger = MetricLogger(run.logdir)
+        self.logger = MetricLogger(run.logdir, run.wandb_project,
+                                   {"run": dataclasses.asdict(run), "algo": dataclasses.asdict(algo_config),
+                                    "task_overrides": dict(task_overrides)} if run.wandb_project else None)
         self.ckpt_dir = os.path.join(os.path.abspath(run.logdir), "checkpoints")
         self._stop = threading.Event()
         self._resumed_meta: dict[str, Any] = {}  # meta of the checkpoint this run resumed from
@@ -387,11 +408,27 @@ class Trainer:
                    "checkpoints": self.ckpt_dir, "interrupted": interrupted, **last_eval}
         if diverged is not None:
             summary["diverged"] = str(diverged)
+        shortfall = None if interrupted else self._shortfall(counters, source)
+        if shortfall is not None:
+            summary["warning"] = shortfall
+            log.warning("%s", shortfall)
         with open(os.path.join(run.logdir, "summary.json"), "w") as f:
             json.dump(summary, f, indent=2)
         if diverged is not None:
             raise diverged
         return summary
+
+    def _shortfall(self, counters: dict[str, int], source: Any) -> str | None:
+        """A finished run that made no learner update, or fewer than its algorithm asks: why, else None."""
+        if isinstance(source, ReplaySource):
+            return source.shortfall(counters["env_steps"])
+        if counters["updates"] == 0:
+            run = self.run
+            batch = self.config.horizon * run.num_workers * run.envs_per_worker
+            return (f"no learner update: one update needs a batch of horizon={self.config.horizon} x "
+                    f"{run.num_workers * run.envs_per_worker} envs = {batch:,} env steps, and the run took "
+                    f"{counters['env_steps']:,}; raise --total_steps")
+        return None
 
     def _final_save(self, ckpt: Any, counters: dict[str, int], state: Any, source: Any) -> None:
         """The end-of-run checkpoint. On an accelerator the update donates its input, so when a stop left
