@@ -87,6 +87,30 @@ def _compare(name: str) -> dict:
     return {"state": state, "metrics": metrics, "moved": moved}
 
 
+def _dtype() -> dict:
+    """Whether the data-parallel FastSAC program multiplies in bf16 where the learner's compute_dtype says so (it
+    once compiled the learner's ``_update`` outside ``xp.compute_dtype``: float32 on two GPUs, bf16 on one)."""
+    import jax
+
+    from tasks.base import TaskSpec
+    from unilab_jax import algos
+    from unilab_jax.config import apply_overrides
+    from unilab_jax.training import sharding
+
+    spec = TaskSpec("check", 6, 6, 2, 50, 0.02, ())
+    module = algos.get("fastsac")
+    batch = _batches(np.random.default_rng(0), (2, 64), 6, 2, {})[0]
+    out = {}
+    for dtype in ("float32", "bfloat16"):
+        config = apply_overrides(module.Config(), {"actor_hidden": (32, 32), "critic_hidden": (32, 32),
+                                                   "batch_size": 64, "updates_per_call": 2, "compute_dtype": dtype})
+        sharded = sharding.make(algos.make_learner(module, "jax", config, spec), 2)
+        state = sharded.init(jax.random.key(0))
+        text = sharded._update.lower(state, {k: sharded.from_numpy(v) for k, v in batch.items()}).as_text()
+        out[dtype] = "bf16" in text
+    return out
+
+
 def _mirror() -> dict:
     """The replay mirror on two devices: same rows as on one, gathered batch split along B."""
     import jax
@@ -149,7 +173,7 @@ class _Stub:
     config = spec = None
 
     @staticmethod
-    def _update(state, batch):
+    def traced_update(state, batch):
         return state, {}
 
 
@@ -166,12 +190,13 @@ def _run_script(*args: str, tmp: str = "") -> dict:
 
 
 def test_sharded_updates_equal_single_device(tmp_path):
-    result = _run_script("fastsac", "ppo", "mirror", "train", tmp=str(tmp_path))
+    result = _run_script("fastsac", "ppo", "mirror", "dtype", "train", tmp=str(tmp_path))
     for name in ("fastsac", "ppo"):
         r = result[name]
         assert r["moved"] > 1e-3, r  # the updates changed the state, so equality is not trivial
         assert r["state"] <= ATOL and r["metrics"] <= ATOL, (name, r)
     assert result["mirror"] == {"same": True, "split": [2, "batch"], "data_devices": 2}
+    assert result["dtype"] == {"float32": False, "bfloat16": True}  # the sharded program keeps the learner's dtype
     # The Trainer with --devices=2 (serial workers, tiny budgets): it updates and evaluates.
     assert result["train"]["fastsac"]["updates"] > 0 and result["train"]["ppo"]["updates"] == 1_024 // 128
     assert all(r["return"] > 0 for k, r in result["train"].items() if k != "ppo_resumed_updates"), result["train"]
@@ -194,6 +219,6 @@ def test_devices_flag_values_are_checked():
 if __name__ == "__main__":
     results = {}
     for what in sys.argv[1:]:
-        results[what] = {"mirror": _mirror, "train": lambda: _train(os.environ["SHARDING_TMP"])}.get(
+        results[what] = {"mirror": _mirror, "dtype": _dtype, "train": lambda: _train(os.environ["SHARDING_TMP"])}.get(
             what, lambda what=what: _compare(what))()
     print(json.dumps(results))

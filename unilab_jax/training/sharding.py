@@ -1,8 +1,9 @@
 """Data-parallel JAX learners over the local accelerators (``--devices``), with ``jax.sharding``.
 
 A 1-D :class:`jax.sharding.Mesh` over the first N local devices, axis ``"batch"``. :class:`DataParallel`
-wraps any JAX learner whose pure update is ``learner._update(state, batch) -> (state, metrics)`` (the
-off-policy learners, PPO/APPO and their subclasses) and compiles that same function once more, with
+wraps any JAX learner whose pure update is ``learner.traced_update(state, batch) -> (state, metrics)`` (the
+off-policy learners, PPO/APPO and their subclasses: the function each compiles for one device, the off-policy
+ones' traced in their ``compute_dtype``, so bf16 matmuls stay bf16 here) and compiles it once more, with
 ``jax.jit(in_shardings=(replicated, batch-sharded), out_shardings=replicated)``:
 
 * the batch is split along its batch axis, axis 1 of every field (``[U, B, ...]`` replay minibatches:
@@ -75,7 +76,7 @@ class DataParallel:
         self.mesh = Mesh(np.asarray(devices), (AXIS,))
         self.replicated = NamedSharding(self.mesh, P())
         self.batch_sharding = NamedSharding(self.mesh, P(None, AXIS))
-        self._update = jax.jit(learner._update, in_shardings=(self.replicated, self.batch_sharding),
+        self._update = jax.jit(learner.traced_update, in_shardings=(self.replicated, self.batch_sharding),
                                out_shardings=self.replicated, donate_argnums=donate_argnums)
 
     @property

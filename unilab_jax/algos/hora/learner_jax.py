@@ -103,7 +103,11 @@ class StudentLearner:
     def __init__(self, config: HoraStudentConfig, spec: Any):
         self.config, self.spec = config, spec
         self.tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.learning_rate))
-        self.update = jax.jit(self._update, donate_argnums=ppo_jax.DONATE_STATE)
+        self.update = jax.jit(self.traced_update, donate_argnums=ppo_jax.DONATE_STATE)
+
+    def traced_update(self, state: StudentState, batch: dict) -> tuple[StudentState, dict]:
+        """The pure update as this learner compiles it (``training.sharding`` compiles the same over devices)."""
+        return self._update(state, batch)
 
     def init(self, key: jax.Array) -> StudentState:
         cfg, s = self.config, self.spec

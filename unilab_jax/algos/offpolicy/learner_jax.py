@@ -69,13 +69,14 @@ class _Jitted:
 
     def _compile(self, compiler_options: dict | None) -> None:
         self.compute_dtype = common.compute_dtype(self.config, jax.default_backend())
-
-        def update(state: Any, batch: dict) -> tuple[Any, dict]:
-            with XP.compute_dtype(self.compute_dtype):
-                return self._update(state, batch)
-
-        self._update_jit = jax.jit(update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
+        self._update_jit = jax.jit(self.traced_update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
         self._init_state = jax.jit(self.initial_state, compiler_options=compiler_options)
+
+    def traced_update(self, state: Any, batch: dict) -> tuple[Any, dict]:
+        """The pure update as this learner compiles it: ``_update`` traced in the learner's ``compute_dtype``
+        (``training.sharding`` compiles this same function over several devices)."""
+        with XP.compute_dtype(self.compute_dtype):
+            return self._update(state, batch)
 
     def update(self, state: Any, batch: dict) -> tuple[Any, dict]:
         """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` (the trainer's

@@ -60,7 +60,12 @@ class Learner:
     def __init__(self, config: ppo.PPOConfig, spec: TaskSpec, use_vtrace: bool = False):
         self.config, self.spec, self.use_vtrace = config, spec, use_vtrace
         self.tx = make_optimizer(config)
-        self.update = jax.jit(self._update, donate_argnums=DONATE_STATE)
+        self.update = jax.jit(self.traced_update, donate_argnums=DONATE_STATE)
+
+    def traced_update(self, state: Any, batch: dict) -> tuple[Any, dict]:
+        """The pure update as this learner compiles it (float32 throughout; ``training.sharding`` compiles this
+        same function over several devices)."""
+        return self._update(state, batch)
 
     def init_params(self, key: jax.Array) -> dict:
         return ppo.init_params(key, self.spec.obs_dim, self.spec.critic_obs_dim, self.spec.action_dim,
