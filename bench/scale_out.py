@@ -69,8 +69,24 @@ def learner(args: argparse.Namespace) -> list[dict]:
     module = algos.get("fastsac")
     rows = []
     for n in args.devices:
-        config = apply_overrides(module.Config(), {"batch_size": n * args.batch_per_device})
+        config = apply_overrides(module.Config(), {"batch_size": n * args.batch_per_device,
+                                                   "compute_dtype": args.compute_dtype})
         plain = algos.make_learner(module, "jax", config, GO1)
+        # DataParallel jits ``plain._update`` itself, which the single-device learner traces inside
+        # xp.compute_dtype (offpolicy/learner_jax.py): without that scope its matmuls are float32 whatever the
+        # config says. --dp_in_compute_dtype wraps it so (diagnosis: what that fix in sharding.py would give).
+        traced_in = plain.compute_dtype if n == 1 else "float32"
+        if n > 1 and args.dp_in_compute_dtype:
+            from unilab_jax import xp as shim
+
+            inner, dtype = plain._update, plain.compute_dtype
+
+            def in_dtype(state, batch, inner=inner, dtype=dtype):
+                with shim.get("jax").compute_dtype(dtype):
+                    return inner(state, batch)
+
+            plain._update = in_dtype  # the instance attribute DataParallel picks up
+            traced_in = dtype
         lrn = sharding.make(plain, n)
         put = getattr(lrn, "from_numpy", jax.numpy.asarray)
         host = _replay_batch(np.random.default_rng(0), config.updates_per_call, config.batch_size)
@@ -86,10 +102,17 @@ def learner(args: argparse.Namespace) -> list[dict]:
             state, metrics = lrn.update(state, batch)
             jax.block_until_ready((state, metrics))
             times.append(time.perf_counter() - t0)
+        if args.profile_dir:  # 3 more steady calls traced (kernels per device, collectives), after the timing
+            with jax.profiler.trace(os.path.join(args.profile_dir, f"devices_{n}"), create_perfetto_trace=True):
+                for _ in range(3):
+                    state, metrics = lrn.update(state, batch)
+                jax.block_until_ready((state, metrics))
         steady = float(np.median(times))
         rows.append({"devices": n, "batch": config.batch_size, "batch_per_device": args.batch_per_device,
-                     "updates_per_call": config.updates_per_call, "first_call_s": first, "steady_s": steady,
-                     "grad_steps_per_s": config.updates_per_call / steady})
+                     "updates_per_call": config.updates_per_call, "compute_dtype": plain.compute_dtype,
+                     "matmuls_traced_in": traced_in, "first_call_s": first, "steady_s": steady,
+                     "grad_steps_per_s": config.updates_per_call / steady,
+                     "samples_per_s": config.updates_per_call * config.batch_size / steady})
     base = rows[0]["grad_steps_per_s"]
     print(f"{'devices':>7s} {'batch':>7s} {'first call s':>12s} {'steady ms':>10s} {'grad steps/s':>12s} {'x':>6s}")
     for r in rows:
@@ -120,7 +143,7 @@ def rollouts(args: argparse.Namespace) -> tuple[list[dict], dict]:
         os.makedirs(os.path.join(os.environ["RAY_TMPDIR"], "ray"), exist_ok=True)
         from ray.cluster_utils import Cluster
 
-        node = {"num_cpus": 1, "node_ip_address": "127.0.0.1", "include_dashboard": False,
+        node = {"num_cpus": args.cpus_per_node, "node_ip_address": "127.0.0.1", "include_dashboard": False,
                 "object_store_memory": 200 * 1024 * 1024, "temp_dir": os.path.join(os.environ["RAY_TMPDIR"], "ray")}
         cluster = Cluster(initialize_head=True, head_node_args=node)
         for _ in range(args.local_nodes - 1):
@@ -185,6 +208,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--ray_address", default="auto", help="rollouts: the cluster (ignored with --local_nodes)")
     ap.add_argument("--local_nodes", type=int, default=0, help="rollouts: start a local cluster of this many nodes")
+    ap.add_argument("--cpus_per_node", type=int, default=1, help="rollouts: CPUs of each --local_nodes node")
     ap.add_argument("--task", default="cartpole_balance")
     ap.add_argument("--num_workers", type=int, default=2)
     ap.add_argument("--workers_per_host", type=int, default=0, help="workers on each other node (0: --num_workers)")
@@ -192,6 +216,12 @@ def main() -> None:
     ap.add_argument("--replay_capacity", type=int, default=200_000, help="rollouts: ring rows per worker")
     ap.add_argument("--warmup", type=float, default=5.0)
     ap.add_argument("--seconds", type=float, default=15.0)
+    ap.add_argument("--compute_dtype", default="auto", choices=["auto", "float32", "bfloat16"],
+                    help="learner: FastSAC's compute_dtype (auto: bfloat16 on a GPU)")
+    ap.add_argument("--dp_in_compute_dtype", action="store_true", help="learner, diagnosis: trace the data-parallel "
+                    "update inside the learner's compute dtype, as the single-device jit does")
+    ap.add_argument("--profile_dir", default="", help="learner: also trace 3 steady calls per device count with "
+                    "jax.profiler into DIR/devices_<n> (read with bench/trace_summary.py)")
     ap.add_argument("--out", default="")
     args = ap.parse_args()
     record: dict = {"command": " ".join(sys.argv), "part": args.part, "loadavg_at_start": list(os.getloadavg())}

@@ -1,13 +1,14 @@
 """Where the time goes in a ``jax.profiler`` trace: device kernels ranked by total time.
 
-    python bench/trace_summary.py DIR [--top 25] [--out summary.json]
+    python bench/trace_summary.py DIR [--top 25] [--per_device] [--out summary.json]
 
 DIR is a ``jax.profiler.trace(..., create_perfetto_trace=True)`` folder (e.g. one written by
 ``bench/learner_update.py --profile_dir``); the newest ``perfetto_trace.json.gz`` under it is read.
 Device processes are those whose name contains ``/device:`` (``/host:CPU`` when no device process
-exists, i.e. a CPU-only trace). Kernels are grouped into matrix multiplies (cuBLAS/CUTLASS/XLA GEMM
-names), reductions, other fusions and copies/memsets, so the table answers "compute-bound on GEMMs or
-not". Busy time is the sum of kernel durations; the span is first kernel start to last kernel end.
+exists, i.e. a CPU-only trace). Kernels are grouped into collectives (NCCL, XLA's all-reduce fusions),
+matrix multiplies (cuBLAS/CUTLASS/XLA GEMM names), reductions, other fusions and copies/memsets, so the table
+answers "compute-bound on GEMMs or not". Busy time is the sum of kernel durations; the span is first kernel
+start to last kernel end. ``--per_device``: the same per device process, with each stream's busy time and span.
 """
 
 from __future__ import annotations
@@ -20,12 +21,16 @@ import json
 import os
 import re
 
+COLLECTIVE = re.compile(r"nccl|all[-_]?reduce|all[-_]?gather|reduce[-_]?scatter|collective[-_]?permute|"
+                        r"all[-_]?to[-_]?all", re.IGNORECASE)
 GEMM = re.compile(r"gemm|xmma|cutlass|cublas|matmul|dot|wgmma|sm\d+_", re.IGNORECASE)
 REDUCE = re.compile(r"reduce|reduction", re.IGNORECASE)
 COPY = re.compile(r"memcpy|memset|copy|transpose", re.IGNORECASE)
 
 
 def category(name: str) -> str:
+    if COLLECTIVE.search(name):  # NCCL kernels and XLA's collective fusions (multi-device traces)
+        return "collective"
     if GEMM.search(name):
         return "gemm"
     if REDUCE.search(name):
@@ -57,6 +62,8 @@ def device_events(events: list[dict]) -> tuple[list[dict], list[str]]:
         kernel_threads = {k for k, n in threads.items() if k[0] in pids and "Stream" in n}
         if kernel_threads:
             chosen = [e for e in chosen if (e["pid"], e["tid"]) in kernel_threads]
+    for e in chosen:
+        e["_process"], e["_stream"] = names[e["pid"]], threads.get((e["pid"], e["tid"]), str(e["tid"]))
     return chosen, sorted(names[p] for p in pids)
 
 
@@ -81,11 +88,27 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folder")
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--per_device", action="store_true", help="also summarise each device process apart, with "
+                    "each stream's busy time and span (multi-device traces: collectives run on their own streams)")
     ap.add_argument("--out", default="")
     args = ap.parse_args()
     events, processes = device_events(load(args.folder))
     s = summarise(events, args.top)
     s["processes"] = processes
+    if args.per_device:
+        s["per_device"] = {}
+        for proc in processes:
+            mine = [e for e in events if e["_process"] == proc]
+            if not mine:
+                continue
+            d = summarise(mine, args.top)
+            d["streams"] = {}
+            for stream in sorted({e["_stream"] for e in mine}):
+                ev = [e for e in mine if e["_stream"] == stream]
+                span = max(e["ts"] + e["dur"] for e in ev) - min(e["ts"] for e in ev)
+                d["streams"][stream] = {"kernels": len(ev), "busy_ms": sum(e["dur"] for e in ev) / 1e3,
+                                        "span_ms": span / 1e3}
+            s["per_device"][proc] = d
     print(f"processes: {', '.join(processes)}")
     print(f"{s['kernels']} kernels, busy {s['busy_ms']:.1f} ms over a span of {s['span_ms']:.1f} ms")
     for cat, ms in s["by_category_ms"].items():
@@ -93,6 +116,11 @@ def main() -> None:
     print(f"{'total ms':>9s} {'calls':>6s} {'share':>6s}  kernel")
     for r in s["top"]:
         print(f"{r['total_ms']:9.2f} {r['calls']:6d} {r['share']:6.1%}  {r['name'][:110]}")
+    for proc, d in s.get("per_device", {}).items():
+        cats = ", ".join(f"{c} {ms:.1f}" for c, ms in d["by_category_ms"].items())
+        print(f"{proc}: busy {d['busy_ms']:.1f} ms over {d['span_ms']:.1f} ms ({cats})")
+        for stream, st in d["streams"].items():
+            print(f"    {stream}: {st['kernels']} kernels, busy {st['busy_ms']:.2f} ms over {st['span_ms']:.2f} ms")
     if args.out:
         with open(args.out, "w") as f:
             json.dump(s, f, indent=2)
