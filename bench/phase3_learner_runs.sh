@@ -63,25 +63,26 @@ scale)
   XLA_FLAGS="$base_flags" python3 bench/scale_out.py learner --devices 1 --batch_per_device 16384 \
     --out /tmp/p3/scale_out_learner_16384.json
   ;;
-scale_dtype)  # the same comparison with both sides in one dtype (float32; bf16 via --dp_in_compute_dtype)
+scale_dtype)  # the same comparison with both sides in one dtype (float32; bf16, which 97357f3 measured through a
+  # bench-only flag, --dp_in_compute_dtype: since the sharding fix the data-parallel path traces the learner's dtype)
   unpack=""; [ -f .rayx/ray_pruned.tar.xz ] && (mkdir -p /tmp/rayx && tar xJf .rayx/ray_pruned.tar.xz -C /tmp/rayx \
     && python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/rayx .rayx/*.whl && echo ray unpacked) &
   unpack=$!
   echo "== scale_out learner 1 2 x 8192, float32 on both"
   XLA_FLAGS="$base_flags" python3 bench/scale_out.py learner --devices 1 2 --batch_per_device 8192 \
     --compute_dtype float32 --out /tmp/p3/scale_out_learner_8192_f32.json
-  echo "== scale_out learner 1 2 x 8192, bf16 on both (--dp_in_compute_dtype, traced)"
+  echo "== scale_out learner 1 2 x 8192, bf16 on both (traced)"
   XLA_FLAGS="$base_flags" python3 bench/scale_out.py learner --devices 1 2 --batch_per_device 8192 \
-    --dp_in_compute_dtype --profile_dir /tmp/p3/prof_scale --out /tmp/p3/scale_out_learner_8192_bf16dp.json
+    --profile_dir /tmp/p3/prof_scale --out /tmp/p3/scale_out_learner_8192_bf16dp.json
   for n in 1 2; do
     python3 bench/trace_summary.py /tmp/p3/prof_scale/devices_$n --top 60 --out /tmp/p3/trace_scale_bf16dp_d$n.json \
       > /tmp/p3/ts.txt; head -12 /tmp/p3/ts.txt
     cp "$(ls -t $(find /tmp/p3/prof_scale/devices_$n -name perfetto_trace.json.gz) | head -1)" \
       /tmp/p3/perfetto_scale_bf16dp_d$n.json.gz
   done
-  echo "== scale_out learner 2 x 4096, bf16 (--dp_in_compute_dtype): the 1 x 8192 batch split"
+  echo "== scale_out learner 2 x 4096, bf16: the 1 x 8192 batch split"
   XLA_FLAGS="$base_flags" python3 bench/scale_out.py learner --devices 2 --batch_per_device 4096 \
-    --dp_in_compute_dtype --out /tmp/p3/scale_out_learner_4096_bf16dp.json
+    --out /tmp/p3/scale_out_learner_4096_bf16dp.json
   wait $unpack
   ;;
 ray_unpack)  # Ray alone (when no scale_dtype call came just before on the same machine)

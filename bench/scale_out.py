@@ -72,21 +72,7 @@ def learner(args: argparse.Namespace) -> list[dict]:
         config = apply_overrides(module.Config(), {"batch_size": n * args.batch_per_device,
                                                    "compute_dtype": args.compute_dtype})
         plain = algos.make_learner(module, "jax", config, GO1)
-        # DataParallel jits ``plain._update`` itself, which the single-device learner traces inside
-        # xp.compute_dtype (offpolicy/learner_jax.py): without that scope its matmuls are float32 whatever the
-        # config says. --dp_in_compute_dtype wraps it so (diagnosis: what that fix in sharding.py would give).
-        traced_in = plain.compute_dtype if n == 1 else "float32"
-        if n > 1 and args.dp_in_compute_dtype:
-            from unilab_jax import xp as shim
-
-            inner, dtype = plain._update, plain.compute_dtype
-
-            def in_dtype(state, batch, inner=inner, dtype=dtype):
-                with shim.get("jax").compute_dtype(dtype):
-                    return inner(state, batch)
-
-            plain._update = in_dtype  # the instance attribute DataParallel picks up
-            traced_in = dtype
+        traced_in = plain.compute_dtype  # DataParallel compiles plain.traced_update, in this dtype
         lrn = sharding.make(plain, n)
         put = getattr(lrn, "from_numpy", jax.numpy.asarray)
         host = _replay_batch(np.random.default_rng(0), config.updates_per_call, config.batch_size)
@@ -218,8 +204,6 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=15.0)
     ap.add_argument("--compute_dtype", default="auto", choices=["auto", "float32", "bfloat16"],
                     help="learner: FastSAC's compute_dtype (auto: bfloat16 on a GPU)")
-    ap.add_argument("--dp_in_compute_dtype", action="store_true", help="learner, diagnosis: trace the data-parallel "
-                    "update inside the learner's compute dtype, as the single-device jit does")
     ap.add_argument("--profile_dir", default="", help="learner: also trace 3 steady calls per device count with "
                     "jax.profiler into DIR/devices_<n> (read with bench/trace_summary.py)")
     ap.add_argument("--out", default="")
