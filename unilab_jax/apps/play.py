@@ -32,11 +32,15 @@ import numpy as np  # noqa: E402
 
 from unilab_jax.apps import saved_run  # noqa: E402
 from unilab_jax.training.evaluation import (  # noqa: E402  (the Python API names them here too)
+    SceneRenderer,
     deterministic_policy,
     fps_of,
     run_episodes,
     write_video,
 )
+
+__all__ = ["SceneRenderer", "deterministic_policy", "fps_of", "main", "rollout_frames", "run_episodes", "run_policy",
+           "write_video"]
 
 log = logging.getLogger(__name__)
 
