@@ -16,12 +16,11 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 # Test files run in parallel (one process per core, at most 4); each file stays in one process, so a
-# module's expensive fixture (an MJX compile, a clean venv) is built once. Files go out in collection order,
-# which tests/conftest.py starts with the slowest files (SLOW_FILES_FIRST), so the workers finish together.
+# module's expensive fixture (an MJX compile, a clean venv) is built once.
 TEST_JOBS ?= $(shell $(PYTHON) -c "import os; print(min(4, os.cpu_count() or 1))")
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_JOBS) --dist loadfile --no-loadscope-reorder tests
+	$(PY) -m pytest -q -n $(TEST_JOBS) --dist loadfile tests
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
