@@ -109,3 +109,24 @@ def apply_overrides(config: C, overrides: Mapping[str, Any] | Iterable[str] | No
 
 def as_dict(config: Any) -> dict[str, Any]:
     return dataclasses.asdict(config)
+
+
+class SelfChecking:
+    """Base of a config dataclass that validates its own fields: ``problems()`` lists what is wrong (a subclass
+    appends its own fields' problems to its base's), and ``__post_init__`` raises one ``ValueError`` naming the
+    class and every problem, so a bad value is refused before any worker starts."""
+
+    def __post_init__(self) -> None:
+        problems = self.problems()
+        if problems:
+            raise ValueError(f"{type(self).__name__}: " + "; ".join(problems))
+
+    def problems(self) -> list[str]:
+        return []
+
+
+def hidden_size_problems(actor_hidden: tuple[int, ...], critic_hidden: tuple[int, ...]) -> list[str]:
+    """The problem of non-positive hidden layer sizes (empty when every size is at least 1)."""
+    if all(n >= 1 for n in (*actor_hidden, *critic_hidden)):
+        return []
+    return [f"hidden layer sizes must be positive (actor_hidden={actor_hidden}, critic_hidden={critic_hidden})"]

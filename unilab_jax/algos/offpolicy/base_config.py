@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import dataclasses
 
+from unilab_jax.config import SelfChecking, hidden_size_problems
+
 
 @dataclasses.dataclass(frozen=True)
-class OffPolicyConfig:
+class OffPolicyConfig(SelfChecking):
     """What every off-policy algorithm of this family configures (defaults: SAC's).
 
     Read by the training loop (``unilab_jax/training``; ``algos.contract.ReplayLoopConfig``), not by a learner's
@@ -45,18 +47,9 @@ class OffPolicyConfig:
     weight_decay: float = 0.0  # decoupled (AdamW) when > 0
     compute_dtype: str = "auto"
 
-    def __post_init__(self) -> None:
-        """Rejects invalid settings early (before any worker starts), every problem in one message."""
-        problems = self.problems()
-        if problems:
-            raise ValueError(f"{type(self).__name__}: " + "; ".join(problems))
-
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""
-        problems = []
-        if not all(n >= 1 for n in (*self.actor_hidden, *self.critic_hidden)):
-            problems.append(f"hidden layer sizes must be positive (actor_hidden={self.actor_hidden}, "
-                            f"critic_hidden={self.critic_hidden})")
+        problems = hidden_size_problems(self.actor_hidden, self.critic_hidden)
         if self.batch_size <= 0 or self.updates_per_call <= 0 or self.publish_every <= 0:
             problems.append("batch_size, updates_per_call and publish_every must be positive")
         if self.utd <= 0 or self.replay_capacity <= 0 or self.learning_starts < 0:

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 
 from unilab_jax import nets
 from unilab_jax import xp as shim
+from unilab_jax.config import SelfChecking, hidden_size_problems
 from unilab_jax.core import distributions, gae, normalizer, vtrace
 from unilab_jax.core import ppo_losses as ppo
 from unilab_jax.lazy import learner_maker
@@ -23,7 +24,7 @@ VTRACE = False  # the learners' targets: GAE (V-trace for APPO)
 
 
 @dataclasses.dataclass(frozen=True)
-class PPOConfig:
+class PPOConfig(SelfChecking):
     """PPO hyperparameters (rsl_rl-style defaults for legged locomotion)."""
 
     actor_hidden: tuple[int, ...] = (512, 256, 128)
@@ -46,18 +47,9 @@ class PPOConfig:
     normalize_obs: bool = True
     obs_clip: float = 10.0
 
-    def __post_init__(self) -> None:
-        """Rejects invalid settings before any worker starts, every problem in one message."""
-        problems = self.problems()
-        if problems:
-            raise ValueError(f"{type(self).__name__}: " + "; ".join(problems))
-
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""
-        problems = []
-        if not all(n >= 1 for n in (*self.actor_hidden, *self.critic_hidden)):
-            problems.append(f"hidden layer sizes must be positive (actor_hidden={self.actor_hidden}, "
-                            f"critic_hidden={self.critic_hidden})")
+        problems = hidden_size_problems(self.actor_hidden, self.critic_hidden)
         if min(self.horizon, self.num_epochs, self.num_minibatches) < 1:
             problems.append("horizon, num_epochs and num_minibatches must be positive")
         if not (0.0 <= self.gamma <= 1.0 and 0.0 <= self.lam <= 1.0):
