@@ -186,81 +186,81 @@ class Recipe:
                 "total_steps": self.total_steps}
 
 
-_RECIPES = {
-    "ppo_cartpole": Recipe("ppo_cartpole", "run_experiment", dict(
+_RECIPES = {r.name: r for r in (
+    Recipe("ppo_cartpole", "run_experiment", dict(
         algo="ppo", task="cartpole_balance", recipe=PPO_CARTPOLE, default_total_steps=200_000)),
-    "appo_cartpole": Recipe("appo_cartpole", "run_experiment", dict(
+    Recipe("appo_cartpole", "run_experiment", dict(
         algo="appo", task="cartpole_balance", recipe=PPO_CARTPOLE, default_total_steps=200_000)),
-    "ppo_go1": Recipe("ppo_go1", "run_experiment", dict(
+    Recipe("ppo_go1", "run_experiment", dict(
         algo="ppo", task="go1_joystick_flat", recipe=PPO_GO1, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
-    "appo_go1": Recipe("appo_go1", "run_experiment", dict(
+    Recipe("appo_go1", "run_experiment", dict(
         algo="appo", task="go1_joystick_flat", recipe=PPO_GO1, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 15, 128))),
-    "fastsac_go1": Recipe("fastsac_go1", "run_experiment", dict(
+    Recipe("fastsac_go1", "run_experiment", dict(
         algo="fastsac", task="go1_joystick_flat", recipe=FASTSAC_GO1, default_total_steps=50_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
-    "fastsac_g1": Recipe("fastsac_g1", "run_experiment", dict(
+    Recipe("fastsac_g1", "run_experiment", dict(
         algo="fastsac", task="g1_walk_flat", recipe=FASTSAC_G1, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
-    "fastsac_g1_track": Recipe("fastsac_g1_track", "run_experiment", dict(
+    Recipe("fastsac_g1_track", "run_experiment", dict(
         algo="fastsac", task="g1_track", recipe=FASTSAC_G1_TRACK, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 15, 64))),
-    "fastsac_go1_mjx": Recipe("fastsac_go1_mjx", "run_mjx_experiment", dict(
+    Recipe("fastsac_go1_mjx", "run_mjx_experiment", dict(
         algo="fastsac", task="go1_joystick_flat", recipe=FASTSAC_GO1, default_total_steps=50_000_000,
         default_num_envs=1024, default_iterations_per_call=50)),
-    "flashsac_go1": Recipe("flashsac_go1", "run_experiment", dict(
+    Recipe("flashsac_go1", "run_experiment", dict(
         algo="flashsac", task="go1_joystick_flat", recipe=FLASHSAC_GO1, default_total_steps=50_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
-    "flashsac_go2": Recipe("flashsac_go2", "run_experiment", dict(
+    Recipe("flashsac_go2", "run_experiment", dict(
         algo="flashsac", task="go2_joystick_flat", recipe=FLASHSAC_GO2, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
-    "him_ppo_go1": Recipe("him_ppo_go1", "run_experiment", dict(
+    Recipe("him_ppo_go1", "run_experiment", dict(
         algo="him_ppo", task="go1_joystick_flat_hist", recipe=HIM_PPO_GO1, task_recipe=HIM_PPO_GO1_TASK,
         default_total_steps=100_000_000, sized_for=SizedFor("a 16-core H100 host", 15, 128))),
-    "ppo_allegro_rotate": Recipe("ppo_allegro_rotate", "run_experiment", dict(
+    Recipe("ppo_allegro_rotate", "run_experiment", dict(
         algo="ppo", task="allegro_rotate", recipe=PPO_ALLEGRO_ROTATE, task_recipe=PPO_ALLEGRO_ROTATE_TASK,
         default_total_steps=100_000_000)),
-    "hora_allegro": Recipe("hora_allegro", "run_hora", dict(
+    Recipe("hora_allegro", "run_hora", dict(
         task="allegro_rotate_hist", teacher_recipe=PPO_ALLEGRO_ROTATE, student_recipe=HORA_ALLEGRO_STUDENT,
         task_recipe=HORA_ALLEGRO_TASK, default_teacher_steps=60_000_000, default_student_steps=10_000_000,
         compare_metric="rotation_rate")),
-    "hora_go1": Recipe("hora_go1", "run_hora", dict(
+    Recipe("hora_go1", "run_hora", dict(
         task="go1_joystick_flat_hist", teacher_recipe=PPO_GO1, student_recipe=HORA_GO1_STUDENT,
         task_recipe=HORA_GO1_TASK, default_teacher_steps=40_000_000, default_student_steps=10_000_000)),
-    "ppo_g1_track": Recipe("ppo_g1_track", "run_experiment", dict(
+    Recipe("ppo_g1_track", "run_experiment", dict(
         algo="ppo", task="g1_track", recipe=PPO_G1_TRACK, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 15, 128))),
-    "ppo_go1_mjx": Recipe("ppo_go1_mjx", "run_mjx_experiment", dict(
+    Recipe("ppo_go1_mjx", "run_mjx_experiment", dict(
         algo="ppo", task="go1_joystick_flat", recipe=PPO_GO1_MJX, default_total_steps=200_000_000)),
-    "rlpd_franka_peg": Recipe("rlpd_franka_peg", "run_robot_experiment", dict(
+    Recipe("rlpd_franka_peg", "run_robot_experiment", dict(
         algo="rlpd", task="robot_peg_insertion", recipe=MANIPULATION_RECIPE, default_total_steps=36_000,
         observation="images", dense_reward=False)),
-    "rlpd_franka_pick": Recipe("rlpd_franka_pick", "run_robot_experiment", dict(
+    Recipe("rlpd_franka_pick", "run_robot_experiment", dict(
         algo="rlpd", task="robot_pick_place", recipe=MANIPULATION_RECIPE, default_total_steps=36_000,
         observation="images", dense_reward=False)),
-    "sac_cartpole": Recipe("sac_cartpole", "run_experiment", dict(
+    Recipe("sac_cartpole", "run_experiment", dict(
         algo="sac", task="cartpole_balance", recipe=SAC_CARTPOLE)),
-    "sac_franka_peg": Recipe("sac_franka_peg", "run_robot_experiment", dict(
+    Recipe("sac_franka_peg", "run_robot_experiment", dict(
         algo="sac", task="robot_peg_insertion", recipe=MANIPULATION_RECIPE, default_total_steps=36_000,
         observation="images", dense_reward=False)),
-    "sac_franka_pick": Recipe("sac_franka_pick", "run_robot_experiment", dict(
+    Recipe("sac_franka_pick", "run_robot_experiment", dict(
         algo="sac", task="robot_pick_place", recipe=SAC_FRANKA_PICK, default_total_steps=50_000)),
-    "sac_go1": Recipe("sac_go1", "run_experiment", dict(
+    Recipe("sac_go1", "run_experiment", dict(
         algo="sac", task="go1_joystick_flat", recipe=SAC_GO1, default_total_steps=50_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
-    "sac_mujoco_gym": Recipe("sac_mujoco_gym", "run_experiment", dict(
+    Recipe("sac_mujoco_gym", "run_experiment", dict(
         algo="sac", task="gym:HalfCheetah-v5", recipe=SAC_MUJOCO_GYM)),
-    "sac_pendulum": Recipe("sac_pendulum", "run_experiment", dict(
+    Recipe("sac_pendulum", "run_experiment", dict(
         algo="sac", task="gym:Pendulum-v1", recipe=SAC_PENDULUM, default_total_steps=30_000)),
-    "sacflow_franka_pick": Recipe("sacflow_franka_pick", "run_robot_experiment", dict(
+    Recipe("sacflow_franka_pick", "run_robot_experiment", dict(
         algo="sacflow", task="robot_pick_place", recipe=SAC_FRANKA_PICK, default_total_steps=50_000)),
-    "td3_cartpole": Recipe("td3_cartpole", "run_experiment", dict(
+    Recipe("td3_cartpole", "run_experiment", dict(
         algo="td3", task="cartpole_balance", recipe=TD3_CARTPOLE)),
-    "td3_go1": Recipe("td3_go1", "run_experiment", dict(
+    Recipe("td3_go1", "run_experiment", dict(
         algo="td3", task="go1_joystick_flat", recipe=TD3_GO1, default_total_steps=50_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
-}
+)}
 
 
 def names() -> list[str]:
