@@ -125,7 +125,6 @@ class RunConfig:
 
 def _learner_platform(platform: str) -> Any:
     """Backend used to convert numpy batches for the learner."""
-
     return shim.get(platform)
 
 
@@ -142,7 +141,6 @@ class Trainer:
         start when launched from the CLI, so compilation and worker start-up are included).
         ``eval_overrides``: task overrides added for evaluations only (e.g. robot tasks evaluating on
         the robots that answer, ``min_envs``)."""
-
         self.t0 = time.time() if start_time is None else start_time
 
         self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, task_overrides
@@ -199,9 +197,7 @@ class Trainer:
 
     def _device_replay(self, pool: Any) -> Any:
         """The accelerator-side replay mirror, or None (see ``RunConfig.replay_on_device``)."""
-        mode = self.run.replay_on_device
-        if mode not in ("auto", "on", "off"):
-            raise ValueError(f"replay_on_device must be auto, on or off, got {mode!r}")
+        mode = self.run.replay_on_device  # one of auto/on/off (RunConfig checks it)
         if mode == "off" or self.run.platform != "jax" or self.run.replay_dir:
             if mode == "on":
                 raise ValueError("replay_on_device=on needs the jax platform and no replay_dir")
@@ -453,12 +449,8 @@ class Trainer:
         """Env steps the replay workers may run ahead of ``utd``; None in "free" mode. The default, four
         learner calls' worth (at least four steps of every env), absorbs the jitter of a learner that
         keeps pace on average."""
-        if self.run.utd_mode not in ("hold", "free"):
-            raise ValueError(f"utd_mode must be hold or free, got {self.run.utd_mode!r}")
-        if self.run.utd_mode == "free":
+        if self.run.utd_mode == "free":  # hold or free, utd_window >= 0: RunConfig checks them
             return None
-        if self.run.utd_window < 0:
-            raise ValueError(f"utd_window must be >= 0, got {self.run.utd_window}")
         return self.run.utd_window or max(4 * math.ceil(cfg.updates_per_call / cfg.utd),
                                           4 * self.run.num_workers * self.run.envs_per_worker)
 
