@@ -155,8 +155,7 @@ class Checkpointer:
         step that exists replaces it (e.g. the final save after more updates at the same env step)."""
         if self._mngr is not None:
             ocp = self._ocp
-            self._mngr.wait_until_finished()
-            self._seal()
+            self.wait()  # the previous save committed and sealed first
             if step in self._mngr.all_steps():
                 self._mngr.delete(step)
             self._mngr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(to_saveable(state)),
@@ -280,8 +279,7 @@ class Checkpointer:
 
     def close(self) -> None:
         if self._mngr is not None:
-            self._mngr.wait_until_finished()
-            self._seal()
+            self.wait()
             self._mngr.close()
 
 
