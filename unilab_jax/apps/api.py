@@ -16,19 +16,19 @@ config keys and values, a subclass) before any worker starts or any file is writ
 
 from __future__ import annotations
 
+import dataclasses
 import types
 from collections.abc import Mapping
 from typing import Any
 
 from unilab_jax import sizing
 from unilab_jax.apps import cli
+from unilab_jax.training.trainer import RunConfig, Trainer
 
-# train()'s run options: the shared flags of apps/cli.py that a Python caller sets (the task, the step budget,
-# the log directory and the overrides are train()'s own arguments).
-RUN_OPTIONS = ("platform", "num_workers", "envs_per_worker", "seed", "resume", "eval_every", "eval_envs",
-               "checkpoint_every", "video_every", "serial", "replay_dir", "replay_disk_gb", "replay_hot_fraction",
-               "replay_chunk_rows", "replay_on_device", "utd_mode", "utd_window", "pin_cpus", "devices",
-               "ray_address", "ray_workers_per_host", "wandb_project")
+# train()'s run options: RunConfig's fields, each set on the command line by the apps/cli.py flag of its name (the
+# algorithm, task, step budget and log directory are train()'s own arguments).
+RUN_OPTIONS = tuple(f.name for f in dataclasses.fields(RunConfig) if f.name not in ("algo", "task", "total_steps",
+                                                                                     "logdir"))
 
 
 def options(algo: str, task: str, *, logdir: str, total_steps: int, config: Mapping[str, Any] | None = None,
@@ -82,6 +82,4 @@ def train(algo: str, task: str, *, logdir: str, total_steps: int, config: Mappin
     when the run made no learner update or fewer than asked)."""
     parts = build(algo, task, logdir=logdir, total_steps=total_steps, config=config, task_config=task_config,
                   **run_options)
-    from unilab_jax.training.trainer import Trainer
-
     return Trainer(*parts).train()
