@@ -15,21 +15,7 @@ import numpy as np
 
 from unilab_jax import xp as shim
 
-ACTIVATIONS = ("elu", "relu", "tanh", "silu", "identity")
-
-
-def _activation(xp: shim.Backend, name: str, x: Any) -> Any:
-    if name == "elu":
-        return xp.elu(x)
-    if name == "relu":
-        return xp.relu(x)
-    if name == "tanh":
-        return xp.tanh(x)
-    if name == "silu":
-        return x / (1.0 + xp.exp(-x))
-    if name == "identity":
-        return x
-    raise ValueError(f"unknown activation {name!r}; choose from {ACTIVATIONS}")
+ACTIVATIONS = shim.ACTIVATIONS
 
 
 def init(key: Any, sizes: Sequence[int], xp: shim.Backend | None = None, final_scale: float = 1.0,
@@ -56,21 +42,12 @@ def init(key: Any, sizes: Sequence[int], xp: shim.Backend | None = None, final_s
     return params
 
 
-def _layer_norm(xp: shim.Backend, x: Any, g: Any, o: Any, eps: float = 1e-5) -> Any:
-    mu = xp.mean(x, axis=-1, keepdims=True)
-    var = xp.mean(xp.square(x - mu), axis=-1, keepdims=True)
-    return (x - mu) / xp.sqrt(var + eps) * g + o
-
-
 def apply(params: list[dict[str, Any]], x: Any, activation: str = "elu") -> Any:
-    """Runs the MLP on ``x`` [..., in] -> [..., out]; hidden layers use ``activation``."""
+    """Runs the MLP on ``x`` [..., in] -> [..., out]; hidden layers use ``activation`` (``xp.dense``)."""
     xp = shim.namespace(params[0]["w"], x)
+    last = len(params) - 1
     for i, layer in enumerate(params):
-        x = xp.matmul(x, layer["w"]) + layer["b"]
-        if i < len(params) - 1:
-            if "g" in layer:
-                x = _layer_norm(xp, x, layer["g"], layer["o"])
-            x = _activation(xp, activation, x)
+        x = xp.dense(x, layer["w"], layer["b"], layer.get("g"), layer.get("o"), activation if i < last else "identity")
     return x
 
 

@@ -25,9 +25,12 @@ its array library and adds the few things the standard lacks, with the same mean
 * conversion: ``asnumpy(x)`` and ``from_numpy(x)``;
 * threads: ``end_thread()`` frees the calling thread's per-thread backend state (MLX's streams); call it
   last in a thread that ran backend work, then join the thread;
+* network layers: ``activation(name, x)``, ``layer_norm(x, g, o)``, ``dense(x, w, b, g, o, activation)``;
 * jax only: ``with xp.compute_dtype("bfloat16"):`` makes ``xp.matmul`` of float32 arrays traced in that
-  block multiply in bfloat16 with float32 accumulation and float32 results (forward and backward), so
-  everything else (norms, softmax, losses, optimizer) stays float32 (``learner_jax``'s ``compute_dtype``).
+  block multiply in bfloat16 with float32 accumulation and float32 results (forward and backward), and
+  ``dense`` with LayerNorm and ReLU keep its activations in bf16 between matmuls (float32 statistics), so
+  norms, softmax, losses and the optimizer stay float32 (``learner_jax``'s ``compute_dtype``;
+  ``unilab_jax.mixed_precision``).
 
 Importing this module imports numpy only. ``get("jax")`` imports jax on demand and ``get("mlx")``
 imports ``unilab_mlx``, so workers stay numpy-only and a Mac without jax can use MLX.
@@ -47,6 +50,7 @@ import numpy as np
 
 __all__ = ["Backend", "get", "namespace", "register_backend", "available", "end_thread", "tree_map", "tree_leaves"]
 
+ACTIVATIONS = ("elu", "relu", "tanh", "silu", "identity")  # Backend.activation's names
 _FACTORIES: dict[str, Callable[[], Backend]] = {}
 _INSTANCES: dict[str, Backend] = {}
 # Modules that register a backend when imported (so `get` can load them lazily).
@@ -189,6 +193,35 @@ class Backend:
     def elu(self, x: Any) -> Any:
         return self.where(x > 0, x, self.expm1(self.minimum(x, self.zeros_like(x))))
 
+    def activation(self, name: str, x: Any) -> Any:
+        """The hidden activation ``name`` (one of ``ACTIVATIONS``) of ``x``."""
+        if name == "elu":
+            return self.elu(x)
+        if name == "relu":
+            return self.relu(x)
+        if name == "tanh":
+            return self.tanh(x)
+        if name == "silu":
+            return x / (1.0 + self.exp(-x))
+        if name == "identity":
+            return x
+        raise ValueError(f"unknown activation {name!r}; choose from {ACTIVATIONS}")
+
+    def layer_norm(self, x: Any, g: Any, o: Any, eps: float = 1e-5) -> Any:
+        """LayerNorm over the last axis with scale ``g`` and offset ``o``."""
+        mu = self.mean(x, axis=-1, keepdims=True)
+        var = self.mean(self.square(x - mu), axis=-1, keepdims=True)
+        return (x - mu) / self.sqrt(var + eps) * g + o
+
+    def dense(self, x: Any, w: Any, b: Any, g: Any = None, o: Any = None, activation: str = "identity") -> Any:
+        """One MLP layer: ``activation(LayerNorm(x @ w + b) * g + o)``, without the LayerNorm when ``g`` is
+        None. The jax backend runs it as bf16 kernels under ``compute_dtype("bfloat16")``
+        (``unilab_jax.mixed_precision``)."""
+        x = self.matmul(x, w) + b
+        if g is not None:
+            x = self.layer_norm(x, g, o)
+        return self.activation(activation, x)
+
     def one_hot(self, idx: Any, n: int, dtype: Any = None) -> Any:
         dtype = self.float32 if dtype is None else dtype
         return self.astype(self.expand_dims(idx, axis=-1) == self.arange(n), dtype)
@@ -290,46 +323,6 @@ class _JaxRandom:
 COMPUTE_DTYPES = ("float32", "bfloat16")
 
 
-def _unbroadcast(x: Any, shape: tuple) -> Any:
-    """Sums ``x`` over the axes that broadcasting added to or widened from ``shape``."""
-    x = x.sum(axis=tuple(range(x.ndim - len(shape))))
-    widened = tuple(i for i, n in enumerate(shape) if n == 1 and x.shape[i] != 1)
-    return x.sum(axis=widened, keepdims=True) if widened else x
-
-
-def _low_precision_matmul(jax: Any, dtype: Any) -> Callable:
-    """``a @ b`` for float32 ``a [..., m, k]``, ``b [..., k, n]`` (broadcast batch axes) with the operands
-    rounded to ``dtype``, float32 accumulation and a float32 result; its gradients multiply in ``dtype``
-    the same way (the cotangent rounded once) and come back float32.
-
-    XLA's CPU backend has no bf16 x bf16 -> f32 dot: there the rounded operands are multiplied in float32,
-    which gives the same products (a product of two bf16 numbers is exact in float32)."""
-    jnp, f32 = jax.numpy, jax.numpy.float32
-    on_cpu = jax.default_backend() == "cpu"
-
-    def mm(a, b):
-        if on_cpu:
-            return jnp.matmul(a.astype(f32), b.astype(f32))
-        return jnp.matmul(a, b, preferred_element_type=f32)
-
-    @jax.custom_vjp
-    def matmul(a, b):
-        return mm(a.astype(dtype), b.astype(dtype))
-
-    def fwd(a, b):
-        a, b = a.astype(dtype), b.astype(dtype)
-        return mm(a, b), (a, b)
-
-    def bwd(res, g):
-        a, b = res
-        g = g.astype(dtype)
-        return (_unbroadcast(mm(g, jnp.swapaxes(b, -1, -2)), a.shape),
-                _unbroadcast(mm(jnp.swapaxes(a, -1, -2), g), b.shape))
-
-    matmul.defvjp(fwd, bwd)
-    return matmul
-
-
 class JaxBackend(Backend):
     name = "jax"
 
@@ -341,8 +334,8 @@ class JaxBackend(Backend):
         self.ns = jnp
         self.random = _JaxRandom(jax)
         self.float32, self.int32, self.uint32, self.bool = jnp.float32, jnp.int32, jnp.uint32, jnp.bool_
-        self._local = threading.local()  # .matmul: the low-precision matmul while compute_dtype is active
-        self._bf16_matmul = _low_precision_matmul(jax, jnp.bfloat16)
+        self._local = threading.local()  # .low: True while compute_dtype("bfloat16") is active
+        self._mp = importlib.import_module("unilab_jax.mixed_precision")  # the bf16 kernels (imports jax)
 
     @contextlib.contextmanager
     def compute_dtype(self, name: str) -> Iterator[None]:
@@ -351,18 +344,27 @@ class JaxBackend(Backend):
         nothing (the plain ``jnp.matmul``)."""
         if name not in COMPUTE_DTYPES:
             raise ValueError(f"compute_dtype must be one of {COMPUTE_DTYPES}, got {name!r}")
-        previous = getattr(self._local, "matmul", None)
-        self._local.matmul = self._bf16_matmul if name == "bfloat16" else None
+        previous = getattr(self._local, "low", False)
+        self._local.low = name == "bfloat16"
         try:
             yield
         finally:
-            self._local.matmul = previous
+            self._local.low = previous
+
+    def _low(self, *arrays: Any) -> bool:
+        """bf16 kernels apply: compute_dtype("bfloat16") is active and every operand is a float32 or bf16 matrix."""
+        return getattr(self._local, "low", False) and all(
+            x.ndim >= 2 and x.dtype in (self.float32, self.ns.bfloat16) for x in arrays)
 
     def matmul(self, a: Any, b: Any) -> Any:
-        low = getattr(self._local, "matmul", None)
-        if low is None or a.ndim < 2 or b.ndim < 2 or a.dtype != self.float32 or b.dtype != self.float32:
+        if not self._low(a, b):
             return self.ns.matmul(a, b)
-        return low(a, b)
+        return self._mp.matmul(a, b, self.float32)
+
+    def dense(self, x: Any, w: Any, b: Any, g: Any = None, o: Any = None, activation: str = "identity") -> Any:
+        if g is None or activation != "relu" or not self._low(x, w):
+            return super().dense(x, w, b, g, o, activation)
+        return self._mp.layer_norm_relu(self._mp.matmul(x, w, self._mp.BF16), b, g, o)
 
     def owns(self, x: Any) -> bool:
         return isinstance(x, self._jax.Array)

@@ -88,6 +88,64 @@ def test_matmul_rounds_operands_and_keeps_float32_results_and_gradients():
     np.testing.assert_array_equal(np.asarray(XP.matmul(x, w)), np.asarray(jnp.matmul(x, w)))
 
 
+def test_layer_norm_relu_kernel_matches_float64_reference():
+    """``mixed_precision.layer_norm_relu``'s hand-written backward against autodiff of the plain float32 function
+    of the same bf16 input: values within one bf16 rounding of a float64 reference, parameter gradients within
+    1e-4 relative, the input's within bf16 rounding (the kernel returns it in bf16)."""
+    from unilab_jax import mixed_precision as mp
+
+    rng = np.random.default_rng(3)
+    h = jnp.asarray(rng.normal(size=(2, 64, 96)) * 3 + 1, jnp.bfloat16)  # an ensemble's [E, B, W] matmul output
+    b, g, o = (jnp.asarray(rng.normal(size=(2, 1, 96)) * s + m, jnp.float32) for s, m in ((1, 0), (0.3, 1), (0.5, 0)))
+    dy = jnp.asarray(rng.normal(size=(2, 64, 96)), jnp.bfloat16)
+    y, vjp = jax.vjp(mp.layer_norm_relu, h, b, g, o)
+    grads = vjp(dy)
+    assert y.dtype == jnp.bfloat16 and grads[0].dtype == jnp.bfloat16 and grads[1].dtype == jnp.float32
+
+    def reference(h, b, g, o):
+        x = h + b
+        xhat = (x - x.mean(-1, keepdims=True)) / np.sqrt(x.var(-1, keepdims=True) + mp.EPS)
+        return np.maximum(xhat * g + o, 0.0)
+
+    f64 = [np.asarray(a, np.float64) for a in (h.astype(jnp.float32), b, g, o)]
+    np.testing.assert_allclose(np.asarray(y, np.float64), reference(*f64), rtol=8e-3, atol=8e-3)
+    _, ref_vjp = jax.vjp(lambda *a: jnp.maximum(_plain_ln(*a, mp.EPS), 0.0), h.astype(jnp.float32), b, g, o)
+    ref = ref_vjp(dy.astype(jnp.float32))
+    for got, want, tol in zip(grads, ref, (8e-3, 1e-4, 1e-4, 1e-4), strict=True):
+        err = np.linalg.norm(np.asarray(got, np.float64) - np.asarray(want)) / np.linalg.norm(np.asarray(want))
+        assert err < tol, (err, tol)
+
+
+def _plain_ln(h, b, g, o, eps):
+    x = h + b
+    mu = x.mean(-1, keepdims=True)
+    return (x - mu) / jnp.sqrt(((x - mu) ** 2).mean(-1, keepdims=True) + eps) * g + o
+
+
+def test_layer_norm_critic_keeps_bf16_activations_between_matmuls():
+    """Under bf16 a LayerNorm + ReLU critic's hidden activations are bf16 (forward and in the backward pass),
+    its output and parameter gradients float32, and the whole critic's gradient stays within bf16 rounding of
+    the float32 program's."""
+    rng = np.random.default_rng(4)
+    params = nets.init(jax.random.PRNGKey(0), (32, 64, 48, 1), XP, layer_norm=True)
+    x = jnp.asarray(rng.normal(size=(128, 32)), jnp.float32)
+
+    def loss(params, x):
+        return jnp.mean(nets.apply(params, x, "relu") ** 2)
+
+    with XP.compute_dtype("bfloat16"):
+        hidden = XP.dense(x, params[0]["w"], params[0]["b"], params[0]["g"], params[0]["o"], "relu")
+        out = nets.apply(params, x, "relu")
+        jaxpr = str(jax.make_jaxpr(jax.grad(loss))(params, x))
+        g16 = jax.grad(loss)(params, x)
+    assert hidden.dtype == jnp.bfloat16 and out.dtype == jnp.float32
+    assert "bf16[128,64]" in jaxpr and "bf16[128,48]" in jaxpr
+    assert all(leaf.dtype == jnp.float32 for leaf in jax.tree_util.tree_leaves(g16))
+    g32 = jax.grad(loss)(params, x)
+    flat = lambda t: jnp.concatenate([jnp.ravel(a) for a in jax.tree_util.tree_leaves(t)])
+    assert 0.0 < float(jnp.linalg.norm(flat(g16) - flat(g32)) / jnp.linalg.norm(flat(g32))) < 2e-2
+
+
 @pytest.mark.parametrize("name", ["fastsac", "flashsac"])
 def test_one_update_close_to_float32(name):
     """Same init and batch: the losses and gradient norms of one update (2 gradient steps) agree within 1%

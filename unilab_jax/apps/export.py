@@ -85,7 +85,7 @@ def _last_axis(g: Graph, x: str, op: str) -> str:
 
 
 def layer_norm(g: Graph, x: str, gain: np.ndarray, offset: np.ndarray, name: str, eps: float = 1e-5) -> str:
-    """``nets._layer_norm``."""
+    """``xp.Backend.layer_norm``."""
     centred = g.op("sub", x, _last_axis(g, x, "reduce_mean"))
     var = _last_axis(g, g.op("mul", centred, centred), "reduce_mean")
     y = g.op("div", centred, g.op("sqrt", g.op("add", var, g.const(f"{name}_eps", eps))))
