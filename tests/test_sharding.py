@@ -131,8 +131,7 @@ def _mirror() -> dict:
         dp = sharding.DataParallel(object.__new__(_Stub), jax.local_devices()[:2])
         two = DeviceReplay(ring, ("obs", "reward"), dp)
         one.sync(), two.sync()
-        i1, i2 = one.sample(2 * 8, np.random.default_rng(1)), two.sample(2 * 8, np.random.default_rng(1))
-        g1, g2 = one.gather(i1.reshape(2, 8)), two.gather(i2.reshape(2, 8))
+        g1, g2 = one.sample((2, 8), np.random.default_rng(1)), two.sample((2, 8), np.random.default_rng(1))
         return {"same": bool(all(np.array_equal(np.asarray(g1[k]), np.asarray(g2[k])) for k in g1)),
                 "split": [len(g2["obs"].sharding.device_set), g2["obs"].sharding.spec[1]],
                 "data_devices": len(two.data["obs"].sharding.device_set)}

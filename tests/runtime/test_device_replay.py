@@ -21,7 +21,7 @@ FIELDS = rt_helpers.PATTERN_FIELDS
 
 
 def _gathered(mirror: DeviceReplay, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-    return {k: np.asarray(v) for k, v in mirror.gather(mirror.sample(n, rng)).items()}
+    return {k: np.asarray(v) for k, v in mirror.sample((n,), rng).items()}
 
 
 def test_mirror_samples_the_valid_rows_uniformly_across_syncs_and_laps():
@@ -29,7 +29,7 @@ def test_mirror_samples_the_valid_rows_uniformly_across_syncs_and_laps():
     try:
         mirror = DeviceReplay(buf, FIELDS)
         with pytest.raises(ValueError, match="empty"):
-            mirror.sample(1, np.random.default_rng(0))
+            mirror.sample((1,), np.random.default_rng(0))
         assert mirror.sync() == 0
         for worker, steps in enumerate((1, 2, 3)):
             for _ in range(steps):

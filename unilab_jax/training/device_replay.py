@@ -10,9 +10,11 @@ update's minibatch is one device-side gather of sampled row indices.
   (:meth:`ReplayBuffer.read_new`, the same lock-free protocol as host sampling) are written to their
   slots of one device array per field, laid out like the rings ([W * C, ...]); each worker's window
   of intact rows ``[lo, hi)`` is kept on the host.
-* ``sample(n, rng)``: ``n`` row indices drawn uniformly over the union of the windows (with
-  replacement), with the caller's numpy generator, so a seeded run draws reproducibly.
-* ``gather(index)``: ``{field: data[field][index]}`` on the device, one jitted call.
+* ``sample(shape, rng)``: a minibatch ``{field: [*shape, ...]}`` of rows drawn uniformly over the union of
+  the windows (with replacement), drawn AND gathered on the device in one jitted call: the host sends the
+  windows (two numbers per worker) and one seed taken from the caller's numpy generator, so a seeded run
+  draws reproducibly, and no index array crosses to the device.
+* ``gather(index)``: ``{field: data[field][index]}`` on the device for host-chosen indices, one jitted call.
 
 Uploads are padded to a power-of-two number of rows (padding rows index past the end and are dropped)
 so the donated scatter compiles for a handful of sizes only. Memory: the rings' size once more on the
@@ -44,6 +46,18 @@ def _gather_impl(data: dict, index: jax.Array) -> dict:
 _gather = jax.jit(_gather_impl)
 
 
+def _sample_impl(data: dict, lo: jax.Array, sizes: jax.Array, seed: jax.Array, shape: tuple, capacity: int) -> dict:
+    """Rows drawn uniformly over the workers' windows ``[lo, lo + size)`` (ring slots modulo ``capacity``)."""
+    ends = jnp.cumsum(sizes)
+    flat = jax.random.randint(jax.random.key(seed), shape, 0, ends[-1], jnp.int32)
+    worker = jnp.searchsorted(ends, flat, side="right")
+    row = lo[worker] + flat - (ends - sizes)[worker]
+    return _gather_impl(data, worker * capacity + row % capacity)
+
+
+_sample = jax.jit(_sample_impl, static_argnums=(4, 5))
+
+
 def _scatter_impl(data: dict, slots: jax.Array, rows: dict) -> dict:
     return {k: v.at[slots].set(rows[k], mode="drop") for k, v in data.items()}
 
@@ -62,11 +76,12 @@ class DeviceReplay:
         # 64-bit fields become 32-bit unless jax_enable_x64 (the learner's fields are float32 and bool).
         self.data = {f: jnp.zeros((self._rows, *ring.fields[f][0]), jax.dtypes.canonicalize_dtype(ring.fields[f][1]))
                      for f in self.fields}
-        self._scatter, self._gather = _scatter, _gather
+        self._scatter, self._gather, self._sample = _scatter, _gather, _sample
         if parallel is not None:
             self.data = jax.device_put(self.data, parallel.replicated)
             self._scatter = jax.jit(_scatter_impl, donate_argnums=0, out_shardings=parallel.replicated)
             self._gather = jax.jit(_gather_impl, out_shardings=parallel.batch_sharding)
+            self._sample = jax.jit(_sample_impl, static_argnums=(4, 5), out_shardings=parallel.batch_sharding)
         self.lo = np.zeros(w, np.int64)  # per worker: global rows [lo, hi) are intact on the device
         self.hi = np.zeros(w, np.int64)  # (hi: the worker's count at the last sync)
         self.uploaded = 0  # rows copied to the device so far
@@ -95,16 +110,15 @@ class DeviceReplay:
         self.lo, self.hi = new["lo"], new["hi"]
         return n
 
-    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``n`` flat row indices (int32), uniform over the intact rows of every worker."""
+    def sample(self, shape: tuple[int, ...], rng: np.random.Generator) -> dict[str, jax.Array]:
+        """A minibatch ``{field: [*shape, ...]}`` drawn uniformly over the intact rows of every worker, on the device
+        (one seed from ``rng``: the same generator state draws the same rows)."""
         sizes = self.hi - self.lo
-        ends = np.cumsum(sizes)
-        if ends[-1] <= 0:
+        if sizes.sum() <= 0:
             raise ValueError("the device replay mirror is empty: call sync() once the rings hold data")
-        flat = rng.integers(0, int(ends[-1]), size=n)
-        worker = np.searchsorted(ends, flat, side="right")
-        g = self.lo[worker] + flat - (ends - sizes)[worker]
-        return (worker * self._ring.capacity + g % self._ring.capacity).astype(np.int32)
+        seed = np.uint32(rng.integers(0, 2**32))
+        return self._sample(self.data, self.lo.astype(np.int32) % self._ring.capacity, sizes.astype(np.int32), seed,
+                            tuple(shape), self._ring.capacity)
 
     def gather(self, index: np.ndarray) -> dict[str, jax.Array]:
         """``{field: rows[index]}`` on the device; ``index`` of any shape (e.g. [U, B])."""

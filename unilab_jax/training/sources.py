@@ -90,8 +90,8 @@ class ReplaySource:
       paces exactly as an uninterrupted one (a batch the prefetcher drew but the loop never used is
       drawn again after the restart).
     * With a device mirror (``mirror``, :class:`~unilab_jax.training.device_replay.DeviceReplay`): each call first
-      copies the newly committed rows to the accelerator, then draws the [U, B] row indices on the host
-      (same seeded generator) and gathers the minibatch on the device.
+      copies the newly committed rows to the accelerator, then draws the [U, B] rows and gathers them on the
+      device (one seed from the same seeded generator).
     * With a persistent store (``--replay_dir``): before sampling, the rows the workers committed
       since the last call are copied to the store (:class:`RingSpiller`, once each); minibatches mix
       the rings (``hot_fraction``) and the disk (:class:`TieredSampler`); a checkpoint first commits
@@ -204,7 +204,7 @@ class ReplaySource:
             if self._mirror is not None:
                 pool.before_sample()
                 scalars["perf/replay_upload_rows"] = float(self._mirror.sync())
-                out = self._mirror.gather(self._mirror.sample(u * b, rng).reshape(u, b))
+                out = self._mirror.sample((u, b), rng)
             else:
                 if self._store is None:
                     batch = pool.sample(u * b, rng)
