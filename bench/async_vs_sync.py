@@ -14,7 +14,7 @@ batch and weights:
 * ``sync`` (in turn): collect one episode on every robot (the same worker code, run in this process),
   then train ``utd x`` the new transitions, then sync the weights, then collect again; the robots wait
   while the learner trains and the weights travel. ``--utd=1,2,4`` measures it at each ratio against one
-  async run: the two metrics trade through the sync pipeline's training share (README).
+  async run: the two metrics trade through the sync pipeline's training share (docs/BENCHMARKS.md).
 
 The published weights carry ``--sync_mb`` MB of ballast beside the policy, so every weight sync moves the
 bytes of a large model (a VLA-sized actor) through the weight channel; the worker reads each new version

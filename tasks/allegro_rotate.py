@@ -51,7 +51,7 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   absolute power |tau . qdot| squared); ``fall`` = 1 on the step the object falls. Scales are HORA's
   (1, -0.3, -0.3, -0.1, -2) plus fall -10 (ours: without it a policy that is still penalised more than it
   earns prefers to drop the object). The experiment recipes set the four penalties to 0 (measured: with
-  them PPO settles on a still hand; README "In-hand rotation (Allegro)").
+  them PPO settles on a still hand; docs/RESULTS.md "In-hand rotation (Allegro)").
 * Termination (fall): object centre below the palm surface or more than 0.09 m (horizontally) from the
   palm centre. Time limit 400 steps (truncation).
 * Evaluation metrics (``eval_tracker()`` -> ``RotationTracker``, the trainer's ``eval/*``):

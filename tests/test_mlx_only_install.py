@@ -68,14 +68,14 @@ def test_mlx_only_install_trains_and_restores_under_jax(mlx_venv, tmp_path):
     probe = _run([py, "-c", "import unilab_jax, unilab_mlx; print(unilab_jax.__file__)"], env=env, cwd=tmp_path)
     assert probe.returncode == 0 and str(REPO) not in probe.stdout, probe  # the installed copy, not the checkout
 
-    # Nothing on the MLX training path imports jax (or orbax/optax/flax/chex), and checkpoints fall back to npz.
+    # Nothing on the MLX training path imports jax (or orbax/optax/chex), and checkpoints fall back to npz.
     script = ("import sys, tempfile, tasks, unilab_jax.apps.cli, unilab_jax.training.trainer\n"
               "from unilab_jax import algos\nfrom unilab_jax.checkpoint import Checkpointer\n"
               "m = algos.get('ppo'); t = tasks.make('cartpole_balance', num_envs=1, seed=0)\n"
               "m.make_learner('mlx', m.Config(), t.spec).init(0); t.close()\n"
               "assert Checkpointer(tempfile.mkdtemp()).format == 'npz'\n"
               "print(sorted(n for n in sys.modules if n.split('.')[0] in ('jax', 'jaxlib', 'orbax', 'optax', "
-              "'flax', 'chex')))")
+              "'chex')))")
     probe = _run([py, "-c", script], env=env, cwd=tmp_path)
     assert probe.returncode == 0 and probe.stdout.strip() == "[]", probe
 

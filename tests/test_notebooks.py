@@ -1,6 +1,8 @@
 """The notebooks of experiments/notebooks run top to bottom (nbclient, the venv's own kernel) with the small
 budgets their first cell reads from UNILAB_NOTEBOOK_BUDGET=ci, and produce what they promise: a learning
-curve image, numbers, a rendered clip. They are stored without outputs."""
+curve image, numbers, a rendered clip. They are stored without outputs, train through ``unilab_jax.train``, and share
+one install cell, whose Colab path (clone the repository, then ``notebook_setup.install``) runs here on a local
+repository."""
 
 from __future__ import annotations
 
@@ -8,6 +10,9 @@ import math
 import os
 import pathlib
 import re
+import shutil
+import subprocess
+import sys
 
 import nbformat
 import pytest
@@ -28,6 +33,49 @@ def _execute(name: str, tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch)
     outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
     text = "".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
     return outputs, text
+
+
+def _code(name: str) -> list[str]:
+    return [c.source for c in nbformat.read(NOTEBOOKS / name, as_version=4).cells if c.cell_type == "code"]
+
+
+NAMES = ("quickstart.ipynb", "mlx_quickstart.ipynb", "locomotion.ipynb")
+
+
+def _install_cell() -> str:
+    cells = {name: [c for c in _code(name) if "import notebook_setup" in c] for name in NAMES}
+    assert all(len(c) == 1 for c in cells.values()), cells
+    assert len({c[0] for c in cells.values()}) == 1, "the notebooks' install cells differ"
+    return cells[NAMES[0]][0]
+
+
+def test_notebooks_train_through_the_api_and_share_one_install_cell():
+    _install_cell()
+    for name in NAMES:
+        source = "\n".join(_code(name))
+        assert "unilab_jax.train(" in source and "recipes.get(" in source, name
+        assert "subprocess" not in source.replace(_install_cell(), ""), name  # no script run as a subprocess
+
+
+def test_install_cell_clones_the_repository_outside_a_checkout(tmp_path):
+    # A stand-in for the repository (its notebook_setup.py alone) and a Colab-like folder without a checkout.
+    repo = tmp_path / "repo"
+    (repo / "experiments" / "notebooks").mkdir(parents=True)
+    shutil.copy(NOTEBOOKS / "notebook_setup.py", repo / "experiments" / "notebooks")
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(repo)]
+    for args in (["init", "-q"], ["add", "."], ["commit", "-qm", "notebook_setup"]):
+        subprocess.run(git + args, check=True)
+    colab = tmp_path / "content"
+    colab.mkdir()
+    cell = 'EXTRAS, NEEDS = "jax,video", "jax"\n' + _install_cell() + "\nprint(ROOT)"
+    env = {k: v for k, v in os.environ.items() if k != "UNILAB_REPO_URL"}
+    bare = subprocess.run([sys.executable, "-c", cell], cwd=colab, env=env, capture_output=True, text=True)
+    assert bare.returncode == 1 and "set REPO_URL (or UNILAB_REPO_URL)" in bare.stderr, bare.stderr[-2000:]
+    env["UNILAB_REPO_URL"] = repo.as_uri()
+    cloned = subprocess.run([sys.executable, "-c", cell], cwd=colab, env=env, capture_output=True, text=True)
+    assert cloned.returncode == 0, cloned.stderr[-2000:]
+    assert cloned.stdout.splitlines()[-1] == str(colab / "unilab-jax")  # the clone is the checkout it installs
+    assert (colab / "unilab-jax" / "experiments" / "notebooks" / "notebook_setup.py").is_file()
 
 
 def _has_png(outputs: list) -> bool:

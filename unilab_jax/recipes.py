@@ -68,12 +68,12 @@ HIM_PPO_GO1 = {**PPO_GO1, "velocity_cols": (57, 58, 59)}
 PPO_ALLEGRO_ROTATE = {"horizon": 16, "learning_rate": 5e-3, "ent_coef": 0.0, "desired_kl": 0.02}
 # Trained on the rotation and fall terms only: with HORA's penalty scales (the task's defaults), and with a
 # tenth of them, PPO settled on a still hand within 0.6-1.5M steps and never rotated the object, while
-# without them the rotation term rose from 0 to 0.03-0.04 per step by 2-2.5M steps (dev VM, README "In-hand
+# without them the rotation term rose from 0 to 0.03-0.04 per step by 2-2.5M steps (dev VM, docs/RESULTS.md "In-hand
 # rotation (Allegro)"). Put the penalties back with --task_config=scale_pose_diff=-0.3 etc.
 # A privileged actor (the object's parameters, position, quaternion and velocities) whose reset targets press the
 # fingers on the object (reset_press). Dev VM, 1024 samples per update, deterministic evaluations (rad/s) at
 # 0.6M / 1.2M steps: seed 0 0.04 / 0.20 without the press, 0.14 / - with it; seed 1 0.01 / 0.04 without, 0.03 /
-# 0.16 with it; seed 2 0.003 / 0.007 with it; the blind actor reached at most 0.10 in 2.5M steps (README
+# 0.16 with it; seed 2 0.003 / 0.007 with it; the blind actor reached at most 0.10 in 2.5M steps (docs/RESULTS.md
 # "In-hand rotation (Allegro)").
 PPO_ALLEGRO_ROTATE_TASK = {"scale_object_linvel": 0.0, "scale_pose_diff": 0.0, "scale_torque": 0.0, "scale_work": 0.0,
                            "object_state_extrinsics": True, "actor_extrinsics": True, "reset_press": 0.25}

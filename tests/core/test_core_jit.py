@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from core_cases import CASE_IDS, CASES
-from core_helpers import assert_close, put
+from core_helpers import put
 
 from unilab_jax import xp as shim
 
@@ -25,7 +25,10 @@ def test_jitted_kernel_traces_once(case):
     jitted = jax.jit(chex.assert_max_traces(kernel, n=1))
     for seed in (0, 1, 2):  # new values, same shapes: no retrace
         args = put(jx, case.make(np.random.default_rng(seed))[0])
-        assert_close(jitted(*args), case.fn(*args, **static), rtol=1e-5, atol=1e-6)
+        compiled, eager = jitted(*args), case.fn(*args, **static)
+        # Same tree, shapes and dtypes as the eager kernel (jit must not promote or drop a leaf), same values.
+        chex.assert_trees_all_equal_shapes_and_dtypes(compiled, eager)
+        chex.assert_trees_all_close(compiled, eager, rtol=1e-5, atol=1e-6)
 
 
 def test_hyperparameters_can_be_traced():

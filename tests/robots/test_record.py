@@ -21,7 +21,7 @@ def test_record_peg_demos_through_servers(tmp_path, capsys):
                       "--episodes=3", f"--out={out}", "--speed=50"])
     assert rc == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert summary["episodes"] == 3 and summary["successes"] == 3  # the scripted expert succeeds (README: 100%)
+    assert summary["episodes"] == 3 and summary["successes"] == 3  # the scripted expert: 100% (docs/MANIPULATION.md)
     with ReplayStore(out) as store:
         rows = store.read(store.first_row, store.committed)
         assert store.info["task"] == "robot_peg_insertion" and store.info["device"] == "expert"

@@ -60,7 +60,7 @@ IMAGE_TASK = {"cameras": ("front",), "image_size": 32, "frame_stack": 3}
 # that the plain commands finish on a 2-core CPU (RLPD's gradient step at batch 128 there: 13 ms; DrQ's four
 # 32-channel convolutions at 64 px: 654 ms; rlpd_franka_peg.py --total_steps=2000: 135-150 s wall). On a GPU:
 # --task_config=image_size=64 --config encoder_channels='(32, 32, 32, 32)' --config encoder_strides='(2, 1, 1, 1)'
-# --config feature_dim=50 and a higher utd (the README's commands).
+# --config feature_dim=50 and a higher utd (the GPU commands of docs/dev/GPU_RUNS.md).
 IMAGE_RECIPE = {"encoder_channels": (8, 8), "encoder_strides": (2, 2), "feature_dim": 32, "utd": 0.5}
 OBSERVATIONS = {"images": IMAGE_TASK, "state": STATE_TASK, "proprio": {}}
 # Under every observation: no inventory-slot one-hot. Periodic evaluation runs on the robots the workers leave
