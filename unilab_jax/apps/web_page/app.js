@@ -145,7 +145,7 @@ async function main() {
     let wall = performance.now(), owed = 0;
     const tick = () => queue(async () => {
       const now = performance.now();
-      owed = Math.min(owed + ((now - wall) / 1000) * SPEED, 0.25);
+      owed = Math.min(owed + ((now - wall) / 1000) * SPEED, 0.5); // at most 0.5 s to catch up
       wall = now;
       while (owed >= spec.ctrl_dt) {
         await stepOnce();
