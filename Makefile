@@ -15,11 +15,16 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# The browser page's npm packages and the browser driver of its tests (tests/test_web.py), as locked.
+NODE_STAMP := node_modules/.package-lock.json
+$(NODE_STAMP): package-lock.json
+	npm ci --no-audit --no-fund
+
 # Test files run in parallel (one process per core, at most 4); each file stays in one process, so a
 # module's expensive fixture (an MJX compile, a clean venv) is built once.
 TEST_JOBS ?= $(shell $(PYTHON) -c "import os; print(min(4, os.cpu_count() or 1))")
 
-test: $(STAMP)
+test: $(STAMP) $(NODE_STAMP)
 	$(PY) -m pytest -q -n $(TEST_JOBS) --dist loadfile tests
 
 lint: $(STAMP)

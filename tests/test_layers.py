@@ -32,7 +32,7 @@ LAYERS = [
     ("unilab_jax.algos.contract", 1),
     # The command entry points kept at their documented names (python -m unilab_jax.play / .export /
     # .robots.record): one-line forwarders to the applications wing, above everything they forward to.
-    ("unilab_jax.play", 7.4), ("unilab_jax.export", 7.4), ("unilab_jax.robots.record", 7.4),
+    ("unilab_jax.play", 7.4), ("unilab_jax.export", 7.4), ("unilab_jax.web", 7.4), ("unilab_jax.robots.record", 7.4),
     # L2: resources: robots (the robot interface, sim robots, servers) < tasks (robot tasks use robot clients)
     # < the runtime (workers build tasks) < checkpoints (which read the runtime's process checks)
     ("unilab_jax.robots", 2.0), ("unilab_jax.robots.*", 2.0),
@@ -53,6 +53,7 @@ LAYERS = [
     # L7: the applications wing: saved runs < play, export, record < the experiments' flags < the family CLIs
     ("unilab_jax.apps", 7.0), ("unilab_jax.apps.saved_run", 7.0),
     ("unilab_jax.apps.play", 7.1), ("unilab_jax.apps.export", 7.1), ("unilab_jax.apps.record", 7.1),
+    ("unilab_jax.apps.web", 7.1),
     ("unilab_jax.apps.cli_help", 7.1),
     ("unilab_jax.apps.cli", 7.2),
     ("unilab_jax.apps.hora_cli", 7.3), ("unilab_jax.apps.mjx_cli", 7.3), ("unilab_jax.apps.robot_cli", 7.3),
@@ -200,6 +201,7 @@ PLATFORM_TWINS = {"learner_jax", "learner_mlx"}
 # Commands kept at their documented names (``python -m unilab_jax.play`` ...): forwarders to the application of
 # the same name, and nothing else (checked below).
 COMMAND_FORWARDERS = {"unilab_jax/play.py": "unilab_jax.apps.play", "unilab_jax/export.py": "unilab_jax.apps.export",
+                      "unilab_jax/web.py": "unilab_jax.apps.web",
                       "unilab_jax/robots/record.py": "unilab_jax.apps.record"}
 
 
