@@ -227,7 +227,7 @@ def add_to_spec(spec: mujoco.MjSpec, terrain: Terrain, floor: str = "floor", hfi
     hs, b = terrain.config.horizontal_scale, terrain.config.border
     rx, ry = (nx - 1) * hs / 2, (ny - 1) * hs / 2
     spec.add_hfield(name=hfield, size=[rx, ry, top, 1.0], nrow=ny, ncol=nx,
-                    userdata=((h.T - lo) / top).ravel().tolist())
+                    userdata=((h.T - lo) / top).ravel())
     old = spec.geom(floor)
     geom = spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=hfield, pos=[rx - b, ry - b, lo])
     for attr in ("friction", "priority", "condim", "solref", "solimp", "solmix", "contype", "conaffinity", "margin",
