@@ -37,7 +37,7 @@ minimum of the sample at or below the point and its +x and +y neighbours) and ``
 grid of points around the base, both written against the array-API shim so the MJX variants can run them.
 
 Memory: MuJoCo keeps the heightfield in the model as float32, and the CPU tasks copy the model per env for
-domain randomisation, so each env holds ``nx * ny * 4`` bytes (the default Go1 grid: ~2.5 MB per env).
+domain randomisation, so each env holds ``nx * ny * 4`` bytes (the default grid: ~3 MB per env).
 """
 
 from __future__ import annotations

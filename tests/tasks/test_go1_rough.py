@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tasks
-from tasks import go1_math, terrain
+from tasks import go1_math, rough, terrain
 from unilab_jax.metrics import WALKING
 
 CLEAN = {"noise_level": 0.0, "domain_randomization": False}
@@ -123,3 +123,27 @@ def test_history_variant_keeps_the_terrain_metrics():
     out = task.step(np.zeros((2, 12), np.float32))
     assert out.truncated.all() and set(out.extras) == set(task.spec.episode_metrics)
     task.close()
+
+
+def test_command_curriculum_widens_after_well_tracked_episodes_and_off_map_truncates():
+    config = rough.RoughConfig(terrain_levels=2, terrain_columns=("rough",), terrain_cell_size=2.0, terrain_border=2.0,
+                               terrain_platform=1.0,
+                               max_init_level=1, command_curriculum=True)
+    state = rough.TerrainState(config, num_envs=2, seed=0, ctrl_dt=0.02, episode_length=10)
+    np.testing.assert_allclose(state.command_fraction, [0.5, 0.5, 0.5])
+    cmd = np.zeros((2, 3))
+    for _ in range(10):  # a full episode tracked at 0.9 of the maximum
+        state.record_step(cmd, np.full(2, 0.9))
+    qpos = np.zeros((2, 7))
+    qpos[:, :2] = state.origins(np.arange(2))[:, :2]
+    state.episode_end(np.array([0]), qpos[:1], np.array([10]), np.array([False]))
+    np.testing.assert_allclose(state.command_fraction, 0.5)  # one episode of two envs: not yet an update
+    state.episode_end(np.array([1]), qpos[1:], np.array([10]), np.array([False]))
+    np.testing.assert_allclose(state.command_fraction, 0.6)  # mean 0.9 >= 0.8: + 0.1 per axis
+    for _ in range(5):  # half an episode at 0.9 (then it fell): 0.45 per step of a full episode
+        state.record_step(cmd, np.full(2, 0.9))
+    state.episode_end(np.arange(2), qpos, np.array([5, 5]), np.zeros(2, bool))
+    np.testing.assert_allclose(state.command_fraction, 0.6)
+    # the map is 4 m x 2 m of cells within a 2 m border: robots within 1 m of its edge are off it
+    np.testing.assert_array_equal(state.off_map(np.array([[-0.9, 1, 0], [-1.1, 1, 0], [4.9, 1, 0], [1, 3.1, 0.0]])),
+                                  [False, True, False, True])
