@@ -127,8 +127,7 @@ def test_history_variant_keeps_the_terrain_metrics():
 
 def test_command_curriculum_widens_after_well_tracked_episodes_and_off_map_truncates():
     config = rough.RoughConfig(terrain_levels=2, terrain_columns=("rough",), terrain_cell_size=2.0, terrain_border=2.0,
-                               terrain_platform=1.0,
-                               max_init_level=1, command_curriculum=True)
+                               terrain_platform=1.0, max_init_level=1, command_curriculum=True)
     state = rough.TerrainState(config, num_envs=2, seed=0, ctrl_dt=0.02, episode_length=10)
     np.testing.assert_allclose(state.command_fraction, [0.5, 0.5, 0.5])
     cmd = np.zeros((2, 3))
