@@ -214,6 +214,7 @@ def _history(base_name: str) -> _Entry:
 _REGISTRY: dict[str, _Entry] = {
     "cartpole_balance": _builtin("tasks.cartpole"),
     "go1_joystick_flat": _builtin("tasks.go1_joystick"),
+    "go1_joystick_rough": _builtin("tasks.go1_rough"),
     "go2_joystick_flat": _builtin("tasks.go2_joystick"),
     "g1_walk_flat": _builtin("tasks.g1_walk"),
     "allegro_rotate": _builtin("tasks.allegro_rotate"),
@@ -222,7 +223,8 @@ _REGISTRY: dict[str, _Entry] = {
     "robot_peg_insertion": _Entry(_ByName("tasks.robot:make", "peg_insertion"),
                                   _ByName("tasks.robot:default_config")),
     **{f"{name}_hist": _history(name)
-       for name in ("cartpole_balance", "go1_joystick_flat", "go2_joystick_flat", "allegro_rotate")},
+       for name in ("cartpole_balance", "go1_joystick_flat", "go1_joystick_rough", "go2_joystick_flat",
+                    "allegro_rotate")},
 }
 
 

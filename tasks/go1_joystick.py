@@ -221,7 +221,7 @@ class Go1JoystickFlat(base.Task):
         if nsub < 1 or abs(nsub * c.sim_dt - c.ctrl_dt) > 1e-9:
             raise ValueError(f"ctrl_dt {c.ctrl_dt} must be a multiple of sim_dt {c.sim_dt}")
         self.dt = c.ctrl_dt
-        self.model = build_spec(c).compile()
+        self.model = self.build_spec(c).compile()
         m = self.model
         M = self.num_envs
         self._rng = np.random.Generator(np.random.Philox(self.seed))
@@ -260,6 +260,10 @@ class Go1JoystickFlat(base.Task):
         self.swing_peak = np.zeros((M, 4))
         self.steps = np.zeros(M, dtype=np.int64)
         self.unstable_count = 0
+
+    def build_spec(self, config: Go1JoystickConfig) -> mujoco.MjSpec:
+        """The task's model (a subclass may edit it: ``tasks/go1_rough.py`` swaps the floor for terrain)."""
+        return build_spec(config)
 
     # ---- domain randomisation -----------------------------------------------------------------
     def _sample_dr(self) -> dict[str, np.ndarray]:
@@ -341,17 +345,32 @@ class Go1JoystickFlat(base.Task):
 
     def _observe(self, s: dict[str, np.ndarray], last_act, command, last_contact, air_time):
         noise = self._noise()
-        return observe(s, self.sim.qpos[:, 7:], self.sim.qvel[:, 6:], last_act, command, last_contact, air_time,
-                       self.default_pose, noise)
+        return self.extend_obs(*observe(s, self.sim.qpos[:, 7:], self.sim.qvel[:, 6:], last_act, command,
+                                        last_contact, air_time, self.default_pose, noise))
+
+    def extend_obs(self, obs: np.ndarray, critic_obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(obs, critic_obs) of the current state with what a subclass appends (nothing here; the rough task's
+        height scan)."""
+        return obs, critic_obs
+
+    def base_states(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(qpos [n, nq], qvel [n, nv]) of new episodes of envs ``idx`` (a subclass moves them: the rough task's
+        cells)."""
+        c = self.config
+        return random_base_states(self.init_qpos, self.model.nv, idx.size, self._rng, c.reset_xy, c.reset_yaw,
+                                  c.reset_base_vel)
+
+    def at_limit(self) -> np.ndarray:
+        """[M] bool: episodes truncated after this step (the time limit; the rough task adds leaving the map)."""
+        return self.steps >= self.config.episode_length
 
     def _exp_steps(self, n: int) -> np.ndarray:
         t = self._rng.exponential(1.0, size=n) * self.config.command_resample_mean_s
         return np.round(t / self.dt).astype(np.int64)
 
     def _reset_envs(self, idx: np.ndarray) -> None:
-        c, r, n = self.config, self._rng, idx.size
-        qpos, qvel = random_base_states(self.init_qpos, self.model.nv, n, r, c.reset_xy, c.reset_yaw,
-                                        c.reset_base_vel)
+        r, n = self._rng, idx.size
+        qpos, qvel = self.base_states(idx)
         ctrl = self.default_pose + self._pose_offset(idx)
         self.sim.set_state(idx, qpos, qvel, ctrl=ctrl)
         self.steps_until_next_cmd[idx] = self._exp_steps(n)
@@ -386,6 +405,7 @@ class Go1JoystickFlat(base.Task):
             self._sensors(), self.sim.qpos[:, 7:], self.sim.qvel[:, 6:], a, self.info(), noise, self.constants(),
             c, self.scales, self.dt,
         )
+        next_obs, next_cobs = self.extend_obs(next_obs, next_cobs)
         self.last_last_act = self.last_act
         self.steps_until_next_cmd -= 1
         due = self.steps_until_next_cmd <= 0
@@ -402,8 +422,8 @@ class Go1JoystickFlat(base.Task):
         self.last_contact = updated["last_contact"]
         self.swing_peak = updated["swing_peak"]
         self.steps += 1
-        out, n_unstable = base.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
-                                           self.steps >= c.episode_length, self._reset_and_observe)
+        out, n_unstable = base.finish_step(next_obs, next_cobs, reward, scaled, done, unstable, self.at_limit(),
+                                           self._reset_and_observe)
         self.unstable_count += n_unstable
         return out
 

@@ -27,8 +27,9 @@ their own. Storage grows with ``H``: obs and next_obs each hold ``H * d + p`` fl
 
 ``register_variant(name)`` adds the variant of any registered task that exposes ``extrinsics``
 (for ``history_extrinsics``); the built-in ones are ``cartpole_balance_hist``,
-``go1_joystick_flat_hist``, ``go2_joystick_flat_hist`` and ``allegro_rotate_hist``. Other attributes (``command``,
-``base_velocity()``, ``extrinsics``, ``dr``, ...) are forwarded to the wrapped task.
+``go1_joystick_flat_hist``, ``go1_joystick_rough_hist``, ``go2_joystick_flat_hist`` and ``allegro_rotate_hist``.
+Other attributes (``command``, ``base_velocity()``, ``extrinsics``, ``dr``, ...) are forwarded to the wrapped task,
+and so are its per-episode metrics (``spec.episode_metrics``, ``StepOut.extras``).
 """
 
 from __future__ import annotations
@@ -83,7 +84,8 @@ class HistoryTask(base.Task):
         self.spec = HistorySpec(
             name=name, obs_dim=h * d + p, critic_obs_dim=s.critic_obs_dim + p, action_dim=s.action_dim,
             episode_length=s.episode_length, ctrl_dt=s.ctrl_dt, reward_terms=s.reward_terms,
-            privileged_dim=s.privileged_dim, frame_dim=d, history_len=h, extrinsics_in_obs=self._ext,
+            privileged_dim=s.privileged_dim, episode_metrics=s.episode_metrics, frame_dim=d, history_len=h,
+            extrinsics_in_obs=self._ext,
         )
         self._frames = np.zeros((self.num_envs, h, d), np.float32)
 
@@ -139,7 +141,7 @@ class HistoryTask(base.Task):
         next_obs, next_cobs = self._pack(nxt, out.next_critic_obs)
         obs, cobs = self._pack(frames, out.critic_obs)
         return base.StepOut(obs, cobs, next_obs, next_cobs, out.reward, out.terminated, out.truncated,
-                            out.reward_terms)
+                            out.reward_terms, out.extras)
 
     def close(self) -> None:
         self.inner.close()

@@ -33,13 +33,13 @@ MANIPULATION_RECIPE = {"actor_hidden": (128, 128), "critic_hidden": (128, 128), 
 # ppo_cartpole.py
 PPO_CARTPOLE = {"actor_hidden": (64, 64), "critic_hidden": (64, 64), "horizon": 32, "ent_coef": 0.0, "gamma": 0.98}
 
-# ppo_go1.py
+# ppo_go1.py, ppo_go1_rough.py
 PPO_GO1 = {"gamma": 0.97,
            # Small initial exploration noise (std 0.37): with the clipped Playground reward, std 1 makes
            # nearly every step's reward 0 and learning never starts (measured: bench/results/README.md).
            "init_log_std": -1.0}
 
-# fastsac_go1.py
+# fastsac_go1.py, fastsac_go1_rough.py
 FASTSAC_GO1 = {"v_min": -0.5, "v_max": 1.5}
 
 # fastsac_g1.py
@@ -194,11 +194,17 @@ _RECIPES = {r.name: r for r in (
     Recipe("ppo_go1", "run_experiment", dict(
         algo="ppo", task="go1_joystick_flat", recipe=PPO_GO1, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
+    Recipe("ppo_go1_rough", "run_experiment", dict(
+        algo="ppo", task="go1_joystick_rough", recipe=PPO_GO1, default_total_steps=200_000_000,
+        sized_for=SizedFor("a 16-core H100 host", 16, 64))),
     Recipe("appo_go1", "run_experiment", dict(
         algo="appo", task="go1_joystick_flat", recipe=PPO_GO1, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 15, 128))),
     Recipe("fastsac_go1", "run_experiment", dict(
         algo="fastsac", task="go1_joystick_flat", recipe=FASTSAC_GO1, default_total_steps=50_000_000,
+        sized_for=SizedFor("a 16-core H100 host", 16, 64))),
+    Recipe("fastsac_go1_rough", "run_experiment", dict(
+        algo="fastsac", task="go1_joystick_rough", recipe=FASTSAC_GO1, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
     Recipe("fastsac_g1", "run_experiment", dict(
         algo="fastsac", task="g1_walk_flat", recipe=FASTSAC_G1, default_total_steps=100_000_000,

@@ -54,7 +54,9 @@ class TrajectorySource:
         return True  # every update publishes
 
     def pool_scalars(self) -> dict[str, float]:
-        return _worker_scalars(self._pool.stats())
+        st = self._pool.stats()
+        # the task's per-episode metrics (e.g. the rough tasks' terrain level), as the replay source logs them
+        return {**_worker_scalars(st), **{f"episode/{k}": v for k, v in st["episode_metrics"].items()}}
 
     def checkpoint_meta(self) -> None:
         """Nothing to add to a checkpoint: slots are collected afresh after a restart."""

@@ -1,0 +1,248 @@
+"""What every rough-terrain walking task adds to its flat task: the terrain, robots placed on their cells, the
+terrain and command curricula, the height scan, the per-episode terrain metrics and the evaluation on hard cells.
+
+A task composes one ``TerrainState`` (``tasks/go1_rough.py``: ``go1_joystick_rough``) and calls it from its hooks:
+
+* model: ``add_to_spec`` swaps the scene's floor plane for the terrain's heightfield (``tasks/terrain.py``);
+* reset: ``place`` moves new episodes to their cell's origin (plus the task's own xy jitter) at the standing
+  height above the highest ground within ``spawn_radius`` of any foot, so the feet start on the surface, not in it;
+* each step: ``record_step`` sums the commanded planar speed and the velocity-tracking reward per env;
+* episode end (auto-reset): ``episode_end`` applies legged_gym's terrain curriculum (``curriculum.next_levels``:
+  distance from the cell's origin vs half a cell and vs half of what the command asked for) and, on, the command
+  curriculum (``command_fraction`` of the final command ranges widens by ``command_step`` once the episodes that
+  ended since the last update, at least ``num_envs`` of them, tracked at ``command_threshold`` of the tracking
+  reward's maximum); envs that diverged (MuJoCo instability) keep their level;
+* observation: ``scan`` is the height scan (``terrain.height_scan``: 17 x 11 points, 0.1 m apart, around the base,
+  turned with its heading), appended to the critic observation and, with ``perceptive``, to the actor's;
+* truncation: ``off_map`` ends episodes of robots within 1 m of the map's edge;
+* metrics: ``episode_metrics`` (``METRICS``: the ended episodes' ``terrain_level`` and the level histogram
+  ``terrain_level_<k>``, logged by the trainer as ``episode/...``); ``TerrainEval``, the evaluation tracker:
+  env i on column ``i mod columns`` at a level of the upper half (``levels // 2`` and above), curricula frozen,
+  full command ranges; it reports the walking metric's numbers overall (the rough-terrain walking criterion is
+  ``metrics.WALKING`` on them) and per terrain type (``walking_<type>`` 1/0, ``tracking_error_<type>``,
+  ``fall_rate_<type>``).
+
+Each worker keeps its own curricula (levels of its envs, command fraction); every worker builds the same terrain
+from ``terrain_seed``. The initial levels come from the task seed: U{0, ..., max_init_level}.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from tasks import base, curriculum, terrain
+from unilab_jax.metrics import WALKING
+
+
+@dataclasses.dataclass(frozen=True)
+class RoughConfig:
+    """The rough-terrain fields of a task config (terrain ranges: (level 0, top level), see ``terrain.py``)."""
+
+    terrain_levels: int = 10
+    terrain_columns: tuple[str, ...] = terrain.TYPES
+    terrain_cell_size: float = 8.0
+    terrain_border: float = 10.0
+    terrain_scale: float = 0.1
+    terrain_seed: int = 0
+    terrain_platform: float = 3.0
+    terrain_rough_height: tuple[float, float] = (0.02, 0.1)
+    terrain_slope: tuple[float, float] = (0.0, 0.4)
+    terrain_step_width: float = 0.31
+    terrain_step_height: tuple[float, float] = (0.05, 0.23)
+    terrain_obstacle_height: tuple[float, float] = (0.05, 0.25)
+    max_init_level: int = 4
+    terrain_curriculum: bool = True
+    spawn_radius: float = 0.05  # metres around each foot whose highest ground sets the spawn height
+    perceptive: bool = False  # True: the actor sees the height scan too (the critic always does)
+    scan_shape: tuple[int, int] = (17, 11)
+    scan_spacing: float = 0.1
+    command_curriculum: bool = False
+    command_start: tuple[float, float, float] = (0.5, 0.5, 0.5)  # fraction of the final (vx, vy, yaw) ranges
+    command_step: tuple[float, float, float] = (0.1, 0.1, 0.1)
+    command_threshold: float = 0.8
+
+
+def terrain_config(c: RoughConfig) -> terrain.TerrainConfig:
+    return terrain.TerrainConfig(
+        levels=c.terrain_levels, columns=tuple(c.terrain_columns), cell_size=c.terrain_cell_size,
+        border=c.terrain_border, horizontal_scale=c.terrain_scale, seed=c.terrain_seed, platform=c.terrain_platform,
+        rough_height=c.terrain_rough_height, slope=c.terrain_slope, step_width=c.terrain_step_width,
+        step_height=c.terrain_step_height, obstacle_height=c.terrain_obstacle_height)
+
+
+def highest_ground(sampler: dict, x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
+    """[n] the highest map sample within ``radius`` (a square) of each point (x, y) [n]."""
+    hmap, scale, border = sampler["heights"], sampler["scale"], sampler["border"]
+    k = math.ceil(radius / scale)
+    off = np.arange(-k, k + 2)  # the cells the square touches, both corners included
+    i = np.clip(np.floor((x + border) / scale).astype(np.int64)[:, None] + off, 0, hmap.shape[0] - 1)
+    j = np.clip(np.floor((y + border) / scale).astype(np.int64)[:, None] + off, 0, hmap.shape[1] - 1)
+    return hmap[i[:, :, None], j[:, None, :]].max(axis=(1, 2))
+
+
+class TerrainState:
+    """The terrain and the per-env curriculum state of one task instance (see the module docstring)."""
+
+    def __init__(self, config: RoughConfig, num_envs: int, seed: int, ctrl_dt: float, episode_length: int):
+        c = config
+        if not 0 <= c.max_init_level < c.terrain_levels:
+            raise ValueError(f"max_init_level {c.max_init_level} must lie in [0, terrain_levels)")
+        self.config, self.num_envs = c, num_envs
+        self.terrain = terrain.build(terrain_config(c))
+        self.sampler = self.terrain.sampler()
+        self.episode_length, self.episode_seconds = episode_length, episode_length * ctrl_dt
+        self._rng = np.random.default_rng([seed, 0x7E55A1])
+        ncol = len(self.terrain.columns)
+        self.levels, self.cols = curriculum.initial_cells(
+            num_envs, ncol, self._rng.integers(0, c.max_init_level + 1, size=num_envs))
+        self.points = terrain.scan_points(*c.scan_shape, c.scan_spacing)
+        self.speed_sum = np.zeros(num_envs)
+        self.tracking_sum = np.zeros(num_envs)
+        self.command_fraction = np.array(c.command_start if c.command_curriculum else (1.0, 1.0, 1.0))
+        self._cmd_tracking, self._cmd_episodes = 0.0, 0
+        self.frozen = False  # evaluation: cells fixed, curricula off
+        x_max, y_max = self.terrain.extent
+        margin = c.terrain_border - 1.0
+        self._bounds = (-margin, x_max + margin, -margin, y_max + margin)
+        self.metric_names = ("terrain_level", *(f"terrain_level_{k}" for k in range(c.terrain_levels)))
+
+    @property
+    def scan_dim(self) -> int:
+        return self.points.shape[0]
+
+    def add_to_spec(self, spec: Any) -> None:
+        terrain.add_to_spec(spec, self.terrain)
+
+    def origins(self, idx: np.ndarray) -> np.ndarray:
+        """[n, 3] the cell origins of envs ``idx``."""
+        return self.terrain.origins[self.levels[idx], self.cols[idx]]
+
+    def place(self, qpos: np.ndarray, idx: np.ndarray, standing_height: float, feet: np.ndarray) -> np.ndarray:
+        """New episodes' ``qpos [n, nq]`` (free joint first, xy relative to the cell's origin) moved onto the cells
+        of envs ``idx``, the base ``standing_height`` above the highest ground within ``spawn_radius`` of any foot
+        (``feet [F, 2]``: the feet's body-frame xy in the standing pose, turned with the base's heading): the
+        highest foot stands as on flat ground, the others above the ground."""
+        qpos = qpos.copy()
+        qpos[:, :2] += self.origins(idx)[:, :2]
+        yaw = terrain.yaw_from_quat(qpos[:, 3:7])[:, None]
+        c, s = np.cos(yaw), np.sin(yaw)
+        x = qpos[:, 0:1] + c * feet[None, :, 0] - s * feet[None, :, 1]
+        y = qpos[:, 1:2] + s * feet[None, :, 0] + c * feet[None, :, 1]
+        top = highest_ground(self.sampler, x.ravel(), y.ravel(), self.config.spawn_radius).reshape(x.shape)
+        qpos[:, 2] = standing_height + top.max(axis=1)
+        return qpos
+
+    def scan(self, qpos: np.ndarray) -> np.ndarray:
+        """[M, P] the height scan at the bases of ``qpos [M, nq]``."""
+        yaw = terrain.yaw_from_quat(qpos[:, 3:7])
+        return terrain.height_scan(self.sampler, qpos[:, :3], yaw, self.points)
+
+    def off_map(self, qpos: np.ndarray) -> np.ndarray:
+        x0, x1, y0, y1 = self._bounds
+        x, y = qpos[:, 0], qpos[:, 1]
+        return (x < x0) | (x > x1) | (y < y0) | (y > y1)
+
+    def record_step(self, command: np.ndarray, tracking: np.ndarray) -> None:
+        """Adds a step's |commanded planar speed| and tracking reward (in [0, 1]) to each env's episode sums."""
+        self.speed_sum += np.linalg.norm(command[:, :2], axis=1)
+        self.tracking_sum += tracking
+
+    def episode_end(self, idx: np.ndarray, qpos: np.ndarray, steps: np.ndarray, diverged: np.ndarray) -> None:
+        """The curricula at the end of the episodes of envs ``idx`` (``qpos [n, nq]`` their last states,
+        ``steps [n]`` their lengths, ``diverged [n]`` those MuJoCo reset as unstable), then fresh sums."""
+        c = self.config
+        if not self.frozen and c.terrain_curriculum:
+            ok = idx[~diverged]
+            dist = np.linalg.norm(qpos[~diverged, :2] - self.origins(ok)[:, :2], axis=1)
+            asked = curriculum.asked_distance(self.speed_sum[ok], steps[~diverged], self.episode_seconds)
+            self.levels[ok] = curriculum.next_levels(self.levels[ok], dist, asked, c.terrain_cell_size,
+                                                     c.terrain_levels, self._rng.integers(0, c.terrain_levels, ok.size))
+        if not self.frozen and c.command_curriculum:
+            # per episode: its tracking reward per step of a full episode (legged_gym: a short one scores less)
+            self._cmd_tracking += float(self.tracking_sum[idx].sum()) / self.episode_length
+            self._cmd_episodes += idx.size
+            if self._cmd_episodes >= self.num_envs:
+                mean = self._cmd_tracking / self._cmd_episodes
+                self.command_fraction = curriculum.widen_commands(self.command_fraction, np.ones(3),
+                                                                  np.array(c.command_step), mean, c.command_threshold)
+                self._cmd_tracking, self._cmd_episodes = 0.0, 0
+        self.speed_sum[idx] = 0.0
+        self.tracking_sum[idx] = 0.0
+
+    def episode_metrics(self, levels: np.ndarray) -> dict[str, np.ndarray]:
+        """``{name: [M]}`` of ``metric_names`` for episodes played at ``levels`` (read where they ended)."""
+        out = {"terrain_level": levels.astype(np.float32)}
+        for k in range(self.config.terrain_levels):
+            out[f"terrain_level_{k}"] = (levels == k).astype(np.float32)
+        return out
+
+    def freeze_for_evaluation(self) -> None:
+        """Env i on column ``i mod columns``, level ``levels // 2 + (i // columns) mod (levels - levels // 2)``;
+        curricula off, full command ranges."""
+        n, L = len(self.terrain.columns), self.config.terrain_levels
+        i = np.arange(self.num_envs)
+        self.cols = i % n
+        self.levels = L // 2 + (i // n) % (L - L // 2)
+        self.command_fraction = np.ones(3)
+        self.frozen = True
+
+
+class TerrainEval:
+    """The evaluation tracker of the rough tasks (``step`` / ``result`` / ``LOGGED`` like
+    ``walking_metric.WalkingTracker``, over each env's first episode): the walking metric overall and per terrain
+    type. ``task`` exposes ``command``, ``base_velocity()`` and ``rough`` (a frozen ``TerrainState``); ``stepper``
+    is what ``step`` steps (the task, or a ``_hist`` variant wrapping it)."""
+
+    def __init__(self, task: Any, stepper: Any = None):
+        self._task, self._stepper = task, stepper if stepper is not None else task
+        m = task.num_envs
+        self.active = np.ones(m, dtype=bool)
+        self._fell = np.zeros(m, dtype=bool)
+        self._sums = np.zeros((m, 2))  # per env: tracking error, yaw-rate error
+        self._count = np.zeros(m)
+        self.types = tuple(dict.fromkeys(task.rough.terrain.columns))
+        self.LOGGED = ("tracking_error", "yaw_rate_error", "fall_rate", "terrain_level",
+                       *(f"{k}_{t}" for t in self.types for k in ("walking", "tracking_error", "fall_rate")))
+
+    @property
+    def done(self) -> bool:
+        return not self.active.any()
+
+    def step(self, action: np.ndarray) -> base.StepOut:
+        cmd = np.array(self._task.command, dtype=np.float64, copy=True)
+        out = self._stepper.step(action)
+        ended = out.terminated | out.truncated
+        self._fell |= self.active & out.terminated
+        ok = self.active & ~ended
+        vel = self._task.base_velocity()
+        err = np.stack([np.linalg.norm(cmd[:, :2] - vel[:, :2], axis=1), np.abs(cmd[:, 2] - vel[:, 2])], axis=1)
+        self._sums += np.where(ok[:, None], err, 0.0)
+        self._count += ok
+        self.active &= ~ended
+        return out
+
+    def _numbers(self, envs: np.ndarray) -> dict[str, float]:
+        n = self._count[envs].sum()
+        mean = self._sums[envs].sum(axis=0) / n if n else np.full(2, np.nan)
+        return {"tracking_error": float(mean[0]), "yaw_rate_error": float(mean[1]),
+                "fall_rate": float(self._fell[envs].mean())}
+
+    def result(self) -> dict[str, float]:
+        rough = self._task.rough
+        out = {**self._numbers(np.ones(self._task.num_envs, dtype=bool)),
+               "terrain_level": float(rough.levels.mean()), "evaluated_steps": int(self._count.sum()),
+               "episodes": self._task.num_envs}
+        names = np.asarray(rough.terrain.columns)[rough.cols]
+        for t in self.types:
+            envs = names == t
+            if not envs.any():
+                out.update({f"walking_{t}": math.nan, f"tracking_error_{t}": math.nan, f"fall_rate_{t}": math.nan})
+                continue
+            numbers = self._numbers(envs)
+            out.update({f"walking_{t}": float(WALKING.met(numbers)), f"tracking_error_{t}": numbers["tracking_error"],
+                        f"fall_rate_{t}": numbers["fall_rate"]})
+        return out
