@@ -7,7 +7,7 @@ OUT=${OUT:-/tmp/p31_walk}; mkdir -p "$OUT/metrics"
 ROBOTS="unitree_go1 unitree_g1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
 python3 bench/time_to_target.py --only "$CONFIG" --seed $SEEDS --max_seconds "${MAXS:-300}" --commit "${COMMIT:-unknown}" \
-  --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$CONFIG.json" 2>&1 | grep -v -i warning | tail -${TAIL:-12}
+  --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$CONFIG.json" ${PROFILE:+--extra=--profile_dir=/tmp/p31_prof --extra=--profile_start=$PROFILE} 2>&1 | grep -v -i warning | tail -${TAIL:-12}
 first=$(ls -d /tmp/time_to_target_runs/${CONFIG}_s${SEEDS%% *}_* | head -1)
 python3 -m unilab_jax.export --logdir "$first" --format onnx --out "$OUT/$NAME.onnx" 2>&1 | tail -2
 python3 - "$first" "$OUT/$NAME.json" <<'PY'
@@ -18,6 +18,10 @@ json.dump({"task": run.task, "task_overrides": run.task_overrides, "algo": run.a
            "seed": run.seed}, open(sys.argv[2], "w"), indent=1)
 print("sidecar", run.task, run.step)
 PY
+if [ -n "${PROFILE:-}" ]; then
+  python3 bench/trace_summary.py /tmp/p31_prof --threads --top 30 --out "$OUT/inrun_trace_$CONFIG.json" > /tmp/ts.txt
+  head -60 /tmp/ts.txt; cp "$(find /tmp/p31_prof -name perfetto_trace.json.gz | head -1)" "$OUT/inrun_perfetto_$CONFIG.json.gz"
+fi
 python3 - "$first/metrics.jsonl" <<'PY'
 import json, sys
 rows = [json.loads(line) for line in open(sys.argv[1])]

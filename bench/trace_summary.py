@@ -9,6 +9,9 @@ exists, i.e. a CPU-only trace). Kernels are grouped into collectives (NCCL, XLA'
 matrix multiplies (cuBLAS/CUTLASS/XLA GEMM names), reductions, other fusions and copies/memsets, so the table
 answers "compute-bound on GEMMs or not". Busy time is the sum of kernel durations; the span is first kernel
 start to last kernel end. ``--per_device``: the same per device process, with each stream's busy time and span.
+``--threads``: the Python threads of the traced process (an in-run trace, ``--profile_dir``), each named by the
+outermost frame of this project it runs, with its busy time (top-level spans) and the project's functions
+ranked by inclusive time, so the loop's host work can be read beside the kernels.
 """
 
 from __future__ import annotations
@@ -84,15 +87,48 @@ def summarise(events: list[dict], top: int) -> dict:
             "by_category_ms": {k: v / 1e3 for k, v in sorted(by_cat.items(), key=lambda kv: -kv[1])}, "top": rows}
 
 
+def python_threads(events: list[dict], top: int) -> list[dict]:
+    """Per Python thread: busy time over the trace's span and the project's functions by inclusive time."""
+    spans = [e for e in events if e.get("ph") == "X" and e.get("name", "").startswith("$")]
+    if not spans:
+        return []
+    t0, t1 = min(e["ts"] for e in spans), max(e["ts"] + e["dur"] for e in spans)
+    by_tid = collections.defaultdict(list)
+    for e in spans:
+        by_tid[e["tid"]].append(e)
+    out = []
+    for evs in by_tid.values():
+        evs.sort(key=lambda e: (e["ts"], -e["dur"]))
+        busy, end = 0.0, -1.0
+        for e in evs:  # union of the spans: nested frames count once
+            if e["ts"] >= end:
+                busy += e["dur"]
+                end = e["ts"] + e["dur"]
+            elif e["ts"] + e["dur"] > end:
+                busy += e["ts"] + e["dur"] - end
+                end = e["ts"] + e["dur"]
+        ours = [e for e in evs if re.search(r"unilab|trainer|sources|threads|evaluation|learner|pool|device_replay",
+                                            e["name"])]
+        total = collections.Counter()
+        for e in ours:
+            total[e["name"]] += e["dur"]
+        label = max(ours, key=lambda e: e["dur"])["name"] if ours else evs[0]["name"]
+        out.append({"thread": label, "busy_ms": busy / 1e3, "span_ms": (t1 - t0) / 1e3,
+                    "top": [{"name": n, "total_ms": d / 1e3} for n, d in total.most_common(top)]})
+    return sorted(out, key=lambda t: -t["busy_ms"])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folder")
     ap.add_argument("--top", type=int, default=25)
     ap.add_argument("--per_device", action="store_true", help="also summarise each device process apart, with "
                     "each stream's busy time and span (multi-device traces: collectives run on their own streams)")
+    ap.add_argument("--threads", action="store_true", help="also summarise the traced process's Python threads")
     ap.add_argument("--out", default="")
     args = ap.parse_args()
-    events, processes = device_events(load(args.folder))
+    raw = load(args.folder)
+    events, processes = device_events(raw)
     s = summarise(events, args.top)
     s["processes"] = processes
     if args.per_device:
@@ -121,6 +157,12 @@ def main() -> None:
         print(f"{proc}: busy {d['busy_ms']:.1f} ms over {d['span_ms']:.1f} ms ({cats})")
         for stream, st in d["streams"].items():
             print(f"    {stream}: {st['kernels']} kernels, busy {st['busy_ms']:.2f} ms over {st['span_ms']:.2f} ms")
+    if args.threads:
+        s["python_threads"] = python_threads(raw, args.top)
+        for t in s["python_threads"]:
+            print(f"thread {t['thread'][:80]}: in traced frames {t['busy_ms']:.1f} of {t['span_ms']:.1f} ms")
+            for r in t["top"][:12]:
+                print(f"    {r['total_ms']:9.2f} ms  {r['name'][:100]}")
     if args.out:
         with open(args.out, "w") as f:
             json.dump(s, f, indent=2)

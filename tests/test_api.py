@@ -14,12 +14,20 @@ SMALL = {"actor_hidden": (16,), "critic_hidden": (16,), "horizon": 32, "ent_coef
 
 
 def test_train_returns_the_summary(tmp_path):
-    logdir = str(tmp_path / "ppo")
+    """... and, with ``profile_dir``, writes an in-run trace of the chosen updates that holds the loop's frames."""
+    import glob
+    import gzip
+
+    logdir, trace = str(tmp_path / "ppo"), str(tmp_path / "trace")
     summary = unilab_jax.train(algo="ppo", task="cartpole_balance", total_steps=20000, logdir=logdir, config=SMALL,
-                               task_config={"episode_length": 100}, num_workers=1, envs_per_worker=16, eval_envs=2)
+                               task_config={"episode_length": 100}, num_workers=1, envs_per_worker=16, eval_envs=2,
+                               profile_dir=trace, profile_start=2, profile_updates=2)
     assert summary["env_steps"] >= 20000 and summary["updates"] > 0 and not summary["interrupted"]
     assert "eval/return" in summary and "warning" not in summary
     assert summary == json.load(open(os.path.join(logdir, "summary.json")))
+    (perfetto,) = glob.glob(os.path.join(trace, "**", "perfetto_trace.json.gz"), recursive=True)
+    names = {e.get("name", "") for e in json.load(gzip.open(perfetto))["traceEvents"]}
+    assert any(n.startswith("$trainer.py") and n.endswith(" _update") for n in names)
 
 
 @pytest.mark.parametrize("kwargs,error,message", [
@@ -45,6 +53,7 @@ def test_bad_arguments_raise_before_anything_starts(tmp_path, kwargs, error, mes
 @pytest.mark.parametrize("kwargs,message", [
     ({"task": "nope"}, "unknown task 'nope'"), ({"num_workers": 0}, "num_workers must be a positive integer"),
     ({"algo": "nope"}, "unknown algorithm"), ({"utd_mode": "fast"}, "utd_mode"), ({"eval_every": -1}, "eval_every"),
+    ({"profile_updates": 0}, "profile_updates must be a positive integer"), ({"profile_start": -1}, "profile_start"),
 ])
 def test_run_config_rejects_what_cannot_run(kwargs, message):
     with pytest.raises(ValueError, match=message):

@@ -98,6 +98,10 @@ flags.DEFINE_integer("ray_workers_per_host", 0, "with --ray_address: worker proc
                      "learner's (0: --num_workers)")
 flags.DEFINE_string("wandb_project", "", "also log to this Weights & Biases project (pip install "
                     "'unilab-jax[wandb]'; WANDB_MODE=offline keeps the run under <logdir>/wandb; empty: no W&B)")
+flags.DEFINE_string("profile_dir", "", "JAX learner: write a jax.profiler trace (kernels and Python threads) of "
+                    "--profile_updates updates from update --profile_start into this folder")
+flags.DEFINE_integer("profile_start", 300, "with --profile_dir: the update the trace starts at (past compile)")
+flags.DEFINE_integer("profile_updates", 30, "with --profile_dir: how many updates the trace holds")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
@@ -105,7 +109,7 @@ flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatabl
 # The flags every run reads, and those only off-policy runs read (--help lists each script's own).
 RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker", "seed", "logdir", "resume",
              "eval_every", "eval_envs", "checkpoint_every", "video_every", "serial", "pin_cpus", "devices",
-             "wandb_project", "config", "task_config")
+             "wandb_project", "profile_dir", "profile_start", "profile_updates", "config", "task_config")
 REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
                 "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
 
@@ -287,7 +291,9 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     replay_chunk_rows=opts.replay_chunk_rows, replay_on_device=opts.replay_on_device,
                     utd_mode=opts.utd_mode, utd_window=opts.utd_window, pin_cpus=opts.pin_cpus,
                     video_every=opts.video_every, devices=opts.devices, ray_address=opts.ray_address,
-                    ray_workers_per_host=opts.ray_workers_per_host, wandb_project=opts.wandb_project)
+                    ray_workers_per_host=opts.ray_workers_per_host, wandb_project=opts.wandb_project,
+                    profile_dir=opts.profile_dir, profile_start=opts.profile_start,
+                    profile_updates=opts.profile_updates)
     return run, module, config, task_overrides
 
 

@@ -52,6 +52,7 @@ from unilab_jax.runtime.spawn import cpu_placement
 from unilab_jax.runtime.weights import WeightPublisher
 from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
 from unilab_jax.training.evaluation import AsyncEvaluator, ClipRecorder, deterministic_policy, run_episodes
+from unilab_jax.training.profiling import ProfileWindow
 from unilab_jax.training.sources import ReplaySource, TrajectorySource
 from unilab_jax.training.threads import LearnerThread, Prefetcher, stop_on_signals
 from unilab_jax.xp import tree_leaves
@@ -103,6 +104,11 @@ class RunConfig:
     ray_address: str = ""
     ray_workers_per_host: int = 0
     wandb_project: str = ""  # also log to this Weights & Biases project (metrics.MetricLogger; "" = no W&B)
+    # JAX learner: a jax.profiler trace of updates [profile_start, profile_start + profile_updates) into profile_dir
+    # ("" = none; training/profiling.py)
+    profile_dir: str = ""
+    profile_start: int = 300
+    profile_updates: int = 30
 
     def __post_init__(self) -> None:
         """The checks that need nothing started: names that exist, counts that can run (``apps.cli.build_run``
@@ -111,10 +117,11 @@ class RunConfig:
             raise ValueError(f"RunConfig: unknown algorithm {self.algo!r}; registered: {algos.names()}")
         if not self.task.startswith("gym:") and self.task not in tasks.names():
             raise ValueError(f"RunConfig: unknown task {self.task!r}; registered: {tasks.names()} (or gym:ENV_ID)")
-        for name in ("num_workers", "envs_per_worker", "total_steps", "eval_envs"):
+        for name in ("num_workers", "envs_per_worker", "total_steps", "eval_envs", "profile_updates"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise ValueError(f"RunConfig: {name} must be a positive integer, got {getattr(self, name)!r}")
-        for name in ("eval_every", "checkpoint_every", "video_every", "utd_window", "ray_workers_per_host"):
+        for name in ("eval_every", "checkpoint_every", "video_every", "utd_window", "ray_workers_per_host",
+                     "profile_start"):
             if getattr(self, name) < 0:
                 raise ValueError(f"RunConfig: {name} must be >= 0, got {getattr(self, name)!r}")
         for name, choices in (("platform", ("jax", "mlx")), ("utd_mode", ("hold", "free")),
@@ -320,6 +327,7 @@ class Trainer:
         prefetch: Prefetcher | None = None
         source: ReplaySource | TrajectorySource | None = None
         progress = ProgressBar(run.total_steps, counters["env_steps"])
+        profile = ProfileWindow(run)
         try:
             pool.start(stop=stop.is_set)
             # The source before the first weights: replay workers wait for them, so a held run's step
@@ -332,6 +340,7 @@ class Trainer:
             prefetch = Prefetcher(source.produce, inline=run.serial)
             t_last, steps_last = time.time(), counters["env_steps"]
             while counters["env_steps"] < run.total_steps and not stop.is_set():
+                profile.step(counters["updates"])
                 t_wait = time.perf_counter()
                 batch, stats = prefetch.get(stop)
                 t_update = time.perf_counter()
@@ -376,6 +385,7 @@ class Trainer:
             diverged = e
         finally:
             progress.close()
+            profile.close()
             if prefetch is not None:
                 prefetch.stop()
             if source is not None:
