@@ -1,0 +1,36 @@
+"""``MetricLogger``: rows queued by ``log`` reach ``metrics.jsonl`` and TensorBoard in order, from any thread."""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import threading
+
+from unilab_jax.metrics import MetricLogger
+
+
+def _rows(logdir: str) -> list[dict]:
+    return [json.loads(line) for line in open(os.path.join(logdir, "metrics.jsonl"))]
+
+
+def test_rows_are_written_in_order_flushed_on_demand_and_at_close(tmp_path):
+    logger = MetricLogger(str(tmp_path))
+    for step in range(500):
+        logger.log(step, {"loss": step * 0.5, "bad": float("nan")})
+    logger.flush()
+    rows = _rows(str(tmp_path))
+    assert [r["step"] for r in rows] == list(range(500)) and rows[3] == {"step": 3, "loss": 1.5}
+    # Two threads log at once (the loop and the evaluation thread): every row is written exactly once.
+    threads = [threading.Thread(target=lambda base=base: [logger.log(base + i, {"x": 1.0}) for i in range(300)])
+               for base in (1000, 2000)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    logger.log(5000, {"last": 2.0})
+    logger.close()
+    logger.close()  # a second close does nothing
+    steps = [r["step"] for r in _rows(str(tmp_path))]
+    assert sorted(steps[500:-1]) == list(range(1000, 1300)) + list(range(2000, 2300)) and steps[-1] == 5000
+    assert glob.glob(str(tmp_path / "events.out.tfevents.*"))
