@@ -215,23 +215,3 @@ def test_bf16_learns_the_contextual_bandit(name):
         state, _ = learner.update(state, bandit_batch(rng, cfg.updates_per_call))
     assert start > 0.5 and error(state) < 0.1, f"{name} bf16: action error {start:.3f} -> {error(state):.3f}"
 
-
-@pytest.mark.parametrize("name", ["fastsac", "td3"])
-def test_unrolled_updates_compute_what_the_loop_computes(name):
-    """``unroll_updates``: the U gradient steps traced one after the other give the loop's parameters and metrics
-    (float32; up to XLA's reassociation across the unrolled program)."""
-    batch = _batch(np.random.default_rng(2), 2)
-    out, loops = {}, {}
-    for unroll in (False, True):
-        cfg = dataclasses.replace(_config(name, "float32"), unroll_updates=unroll)
-        learner = (offpolicy_jax.TD3Learner(cfg, SPEC, compiler_options=FAST_COMPILE) if name == "td3" else
-                   offpolicy_jax.SACFamilyLearner(algos.get(name), cfg, SPEC, compiler_options=FAST_COMPILE))
-        loops[unroll] = learner._update_jit.lower(learner.init(jax.random.PRNGKey(0)), batch).as_text().count(
-            "stablehlo.while")
-        out[unroll] = learner.update(learner.init(jax.random.PRNGKey(0)), batch)
-    assert loops[True] == loops[False] - 1  # the scan's loop is gone
-    (s0, m0), (s1, m1) = out[False], out[True]
-    for a, b in zip(jax.tree_util.tree_leaves(s0), jax.tree_util.tree_leaves(s1), strict=True):
-        np.testing.assert_allclose(np.asarray(a, np.float64), np.asarray(b, np.float64), rtol=1e-4, atol=1e-5)
-    for k in m0:
-        assert float(m1[k]) == pytest.approx(float(m0[k]), rel=1e-4, abs=1e-5), k

@@ -66,6 +66,25 @@ class TrajectorySource:
         """Nothing to flush."""
 
 
+def with_prior(online: dict, prior: dict | None) -> dict:
+    """The minibatch ``online`` with the prior rows ``prior`` composed in (RLPD's symmetric sampling); as is without."""
+    return online if prior is None else rlpd.compose({k: online[k] for k in prior}, prior)
+
+
+class DeferredBatch:
+    """A minibatch of the device mirror, finished by the thread that runs the update (``batch()``): the staged upload
+    written into the mirror, then the drawn rows gathered (and the prior rows composed in). The prefetch thread
+    only copies rows out of the rings and draws on the host (``DeviceReplay.stage`` / ``draw``), so it never
+    waits for an update in flight."""
+
+    def __init__(self, mirror: Any, upload: Any, draw: tuple, prior: dict | None):
+        self._mirror, self._upload, self._draw, self._prior = mirror, upload, draw, prior
+
+    def __call__(self) -> dict:
+        self._mirror.write(self._upload)
+        return with_prior(self._mirror.take(self._draw), self._prior)
+
+
 class ReplaySource:
     """Off-policy: workers fill the replay ring on their own; the learner samples [U, B] batches,
     holding the update-to-data ratio at ``utd`` gradient steps per env step, and publishes weights
@@ -92,8 +111,9 @@ class ReplaySource:
       paces exactly as an uninterrupted one (a batch the prefetcher drew but the loop never used is
       drawn again after the restart).
     * With a device mirror (``mirror``, :class:`~unilab_jax.training.device_replay.DeviceReplay`): each call first
-      copies the newly committed rows to the accelerator, then draws the [U, B] rows and gathers them on the
-      device (one seed from the same seeded generator).
+      copies the newly committed rows out of the rings and starts their upload, and draws the [U, B] rows (one
+      seed from the same seeded generator); the batch it hands over is a :class:`DeferredBatch`, which the
+      learner's thread finishes right before the update (the upload scattered in, the rows gathered on the device).
     * With a persistent store (``--replay_dir``): before sampling, the rows the workers committed
       since the last call are copied to the store (:class:`RingSpiller`, once each); minibatches mix
       the rings (``hot_fraction``) and the disk (:class:`TieredSampler`); a checkpoint first commits
@@ -205,8 +225,9 @@ class ReplaySource:
             scalars = {}
             if self._mirror is not None:
                 pool.before_sample()
-                scalars["perf/replay_upload_rows"] = float(self._mirror.sync())
-                out = self._mirror.sample((u, b), rng)
+                upload, n = self._mirror.stage()
+                scalars["perf/replay_upload_rows"] = float(n)
+                draw = self._mirror.draw((u, b), rng)
             else:
                 if self._store is None:
                     batch = pool.sample(u * b, rng)
@@ -216,12 +237,14 @@ class ReplaySource:
                     batch = self._tiers.sample(u, b, rng)
                 out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:]))
                        for k in replay_fields(self._pool.spec)}
+            prior = None
             if b_prior:  # the prior data holds fields.prior_fields only: the task's others (``source``) are left out
                 idx = rng.integers(0, len(self._prior["reward"]), size=u * b_prior)
-                out = rlpd.compose({k: out[k] for k in self._prior},
-                                   {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))
-                                    for k, v in self._prior.items()})
+                prior = {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))
+                         for k, v in self._prior.items()}
                 scalars["perf/prior_rows"] = float(b_prior)
+            out = (DeferredBatch(self._mirror, upload, draw, prior) if self._mirror is not None
+                   else with_prior(out, prior))
         self._grad_steps += u
         self._produced += 1
         scalars.update({"perf/utd_wait_s": t1 - t0, "perf/sample_s": time.perf_counter() - t1})

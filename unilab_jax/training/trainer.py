@@ -53,7 +53,7 @@ from unilab_jax.runtime.weights import WeightPublisher
 from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
 from unilab_jax.training.evaluation import AsyncEvaluator, ClipRecorder, deterministic_policy, run_episodes
 from unilab_jax.training.profiling import ProfileWindow
-from unilab_jax.training.sources import ReplaySource, TrajectorySource
+from unilab_jax.training.sources import DeferredBatch, ReplaySource, TrajectorySource
 from unilab_jax.training.threads import LearnerThread, Prefetcher, stop_on_signals
 from unilab_jax.xp import tree_leaves
 
@@ -450,8 +450,11 @@ class Trainer:
         log.warning("final checkpoint skipped: the update left running took the state's buffers; the last "
                     "checkpoint (env step %s) stands", ckpt.latest_step())
 
-    def _update(self, state: Any, batch: dict) -> tuple[Any, dict[str, float]]:
-        """One learner update and its losses as floats (which waits for the update to finish)."""
+    def _update(self, state: Any, batch: dict | DeferredBatch) -> tuple[Any, dict[str, float]]:
+        """One learner update (a device mirror's batch finished first, on this thread) and its losses as floats
+        (which waits for the update to finish)."""
+        if isinstance(batch, DeferredBatch):
+            batch = batch()
         state, metrics = self.learner.update(state, batch)
         return state, {f"loss/{k}": float(v) for k, v in metrics.items()}
 

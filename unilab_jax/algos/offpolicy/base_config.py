@@ -27,9 +27,6 @@ class OffPolicyConfig(SelfChecking):
     float32 accumulation, results, master weights, norms, softmax, C51 projection, log-probs, losses and
     optimizer: ``unilab_jax.xp``'s ``compute_dtype``) or "auto" (``learner_common.AUTO_COMPUTE_DTYPE``
     per backend: float32 on CPU). The MLX learners compute in float32 and refuse "bfloat16".
-    ``unroll_updates``: the JAX learners trace the U gradient steps of a call one after the other instead of as a
-    loop (``lax.scan(unroll=U)``): on a GPU, XLA's loop reads its condition back on the host before every step, so
-    a loaded CPU delays each step's launches; unrolled, a call launches as one program, at a longer compile.
     """
 
     actor_hidden: tuple[int, ...] = (256, 256)
@@ -49,7 +46,6 @@ class OffPolicyConfig(SelfChecking):
     max_grad_norm: float = 0.0  # 0 disables gradient clipping
     weight_decay: float = 0.0  # decoupled (AdamW) when > 0
     compute_dtype: str = "auto"
-    unroll_updates: bool = False
 
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""
