@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Issue 31: one FastSAC Go1 learner call (bf16, recipe) alone and beside 15 busy CPU processes (the in-run load of the
 # 15 rollout workers), as a loop (default), unrolled (--config unroll_updates=true) and with XLA's command buffers
-# taking the loop (WHILE); then (RUN=1) a Go1 time-to-walking run with an in-run trace. Results under $OUT.
+# taking the loop (WHILE). Results under $OUT. (unroll_updates existed at commit 2f935f3 only: measured no gain, removed.)
 set -u
 OUT=${OUT:-/tmp/p31_inrun}; mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
