@@ -31,7 +31,6 @@ import json
 import logging
 import math
 import os
-import sys
 import threading
 import time
 from typing import Any
@@ -329,11 +328,6 @@ class Trainer:
         source: ReplaySource | TrajectorySource | None = None
         progress = ProgressBar(run.total_steps, counters["env_steps"])
         profile = ProfileWindow(run)
-        # Several Python threads share this process (the loop, the learner, prefetch, evaluation, the metrics
-        # writer); the learner's thread must get the GIL back as soon as an update's dispatch returns. CPython
-        # hands the GIL over every 5 ms by default; at 0.5 ms that wait shrinks (docs/perf/learner_scaling.md).
-        switch_s = sys.getswitchinterval()
-        sys.setswitchinterval(self._GIL_SWITCH_S)
         try:
             pool.start(stop=stop.is_set)
             # The source before the first weights: replay workers wait for them, so a held run's step
@@ -390,7 +384,6 @@ class Trainer:
         except LearningDiverged as e:
             diverged = e
         finally:
-            sys.setswitchinterval(switch_s)
             progress.close()
             profile.close()
             if prefetch is not None:
@@ -456,8 +449,6 @@ class Trainer:
                 raise
         log.warning("final checkpoint skipped: the update left running took the state's buffers; the last "
                     "checkpoint (env step %s) stands", ckpt.latest_step())
-
-    _GIL_SWITCH_S = 0.0005  # see train()
 
     def _update(self, state: Any, batch: dict | DeferredBatch) -> tuple[Any, dict[str, float]]:
         """One learner update (a device mirror's batch finished first, on this thread) and its losses as floats
