@@ -39,8 +39,9 @@ class SafetyLimits:
 
     def __post_init__(self):
         lo, hi = np.asarray(self.box_low, float), np.asarray(self.box_high, float)
-        if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi)):
-            raise ValueError(f"the workspace box needs 3 finite lows and highs, got {self.box_low}, {self.box_high}")
+        if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi) & (lo < hi)):
+            raise ValueError(f"the workspace box needs 3 finite lows below 3 finite highs, got box_low {self.box_low}, "
+                             f"box_high {self.box_high}")
         if not 0.0 <= self.margin < 0.5 * float(np.min(hi - lo)):
             raise ValueError(f"margin must be >= 0 and leave room inside the box {self.box_low}..{self.box_high}, "
                              f"got {self.margin}")

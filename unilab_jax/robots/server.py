@@ -74,7 +74,7 @@ class ServerConfig:
     key_file: str = ""  # the server's NAME.key_secret ("": no CURVE, loopback only)
     allow_dir: str = ""  # folder of the admitted clients' public NAME.key files
     rate_hz: float = 20.0  # requests per second of each client other than the owner (bursts of rate_burst)
-    rate_burst: float = 10.0
+    rate_burst: float = 50.0
     total_rate_hz: float = 500.0  # requests per second of all clients but the owner together
 
     def __post_init__(self):
