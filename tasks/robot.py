@@ -71,7 +71,8 @@ class RobotTaskConfig:
 
     robots: tuple[str, ...] = ()  # robot server addresses (the inventory); (): in-process simulated robots
     # Keyed servers (robots.keys): per robot its public key (Z85; "" for a server without keys), and the path of
-    # this client's NAME.key_secret (robots.inventory.Inventory.task_overrides fills them from the TOML)
+    # this client's NAME.key_secret (robots.inventory.Inventory.task_overrides fills them from the TOML); unused
+    # without robots (a saved run played on in-process robots)
     server_keys: tuple[str, ...] = ()
     client_key: str = ""
     arm: str = "franka"  # in-process robots only
@@ -114,9 +115,9 @@ class RobotTaskConfig:
     def __post_init__(self):
         for address in self.robots:
             check_address(address)
-        if self.server_keys and len(self.server_keys) != len(self.robots):
+        if self.robots and self.server_keys and len(self.server_keys) != len(self.robots):
             raise ValueError(f"server_keys needs one key per robot ({len(self.robots)}), got {len(self.server_keys)}")
-        if any(self.server_keys) and not self.client_key:
+        if self.robots and any(self.server_keys) and not self.client_key:
             raise ValueError("keyed robot servers (server_keys) need client_key, this client's NAME.key_secret")
         if self.episode_length < 1:
             raise ValueError(f"episode_length must be positive, got {self.episode_length}")

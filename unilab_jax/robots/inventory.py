@@ -212,7 +212,8 @@ class Inventory:
     def task_overrides(self) -> dict[str, Any]:
         """The robot task's fields for these robots: ``robots`` (the addresses) and the keys of keyed servers
         (``server_keys``, one per robot, "" for none; ``client_key``)."""
-        return {"robots": tuple(self.addresses), "server_keys": tuple(e.server_key for e in self.entries),
+        server_keys = tuple(e.server_key for e in self.entries)
+        return {"robots": tuple(self.addresses), "server_keys": server_keys if any(server_keys) else (),
                 "client_key": next((e.client_key for e in self.entries if e.client_key), "")}
 
     def keyring(self) -> list[keys.ClientKeys | None]:

@@ -5,7 +5,8 @@
 tcp speed, and a contact-force limit. Commands are clamped before they reach the servos (the target pose into
 the box shrunk by ``margin`` and into the cone, the joint step to ``max_joint_speed``; a joint target whose
 forward kinematics leaves the box or the cone is scaled back towards the measured joints); what is measured
-after the step (tcp pose outside the box or cone, tcp speed, contact force) triggers a protective stop.
+after the step (the tcp more than ``pose_slack`` outside the box or ``cone_slack_deg`` outside the cone, the tcp
+speed, a contact force) triggers a protective stop.
 ``LIMIT_HITS`` names the counters a robot's ``health().limit_hits`` reports.
 """
 
@@ -24,6 +25,9 @@ from unilab_jax.robots import ik
 # (measured pose outside the box or cone), tcp_speed, force.
 LIMIT_HITS = ("workspace", "orientation", "joint_velocity", "kinematics", "pose", "tcp_speed", "force")
 DOWN = np.array([0.0, 0.0, -1.0])
+# A joint target passes the kinematic check when its tcp is margin / 2 inside the box and within this many degrees
+# beyond the cone (the IK does not reach a commanded orientation exactly).
+KINEMATIC_CONE_SLACK_DEG = 5.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,10 +36,13 @@ class SafetyLimits:
     box_high: tuple[float, float, float] = (0.8, 0.45, 0.45)
     margin: float = 0.005  # commanded tcp targets stay this far inside the box (room for dynamic overshoot)
     cone_deg: float = 60.0  # the tcp approach axis stays within this angle of pointing down
-    cone_slack_deg: float = 10.0  # measured tilt beyond cone_deg + this: protective stop
+    cone_slack_deg: float = 20.0  # measured tilt beyond cone_deg + this: protective stop
+    pose_slack: float = 0.02  # measured tcp farther than this outside the box (a push, a collision): protective stop
     max_joint_speed: float = 2.0  # rad/s of simulated time: the joint targets' change per control period
-    max_tcp_speed: float = 1.0  # m/s measured; faster: protective stop
-    max_force: float = 400.0  # N, the largest contact force on the arm and gripper; larger: protective stop
+    max_tcp_speed: float = 1.5  # m/s measured; faster: protective stop (commands move the tcp at most ~0.5 m/s)
+    # N, the largest contact force on the arm and gripper; larger: protective stop. The simulated arms' rigid contacts
+    # reach ~640 N when random actions jam the peg in its hole: set a physical arm's own rating here.
+    max_force: float = 1000.0
 
     def __post_init__(self):
         lo, hi = np.asarray(self.box_low, float), np.asarray(self.box_high, float)
@@ -45,6 +52,8 @@ class SafetyLimits:
         if not 0.0 <= self.margin < 0.5 * float(np.min(hi - lo)):
             raise ValueError(f"margin must be >= 0 and leave room inside the box {self.box_low}..{self.box_high}, "
                              f"got {self.margin}")
+        if not 0.0 <= self.pose_slack < 1.0:
+            raise ValueError(f"pose_slack must be in [0, 1) m, got {self.pose_slack}")
         if not 0.0 < self.cone_deg <= 180.0 or not 0.0 <= self.cone_slack_deg <= 90.0:
             raise ValueError(f"cone_deg must be in (0, 180] and cone_slack_deg in [0, 90], got {self.cone_deg}, "
                              f"{self.cone_slack_deg}")

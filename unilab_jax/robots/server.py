@@ -40,7 +40,8 @@ from unilab_jax.robots.interface import BadRequest, Robot
 OPEN_OPS = frozenset({"spec", "health", "ping", "estop", "claim"})
 OWNER_OPS = frozenset({"reset", "step", "clear_estop", "release", "heartbeat"})
 READ_OPS = frozenset({"spec", "health", "ping"})  # change nothing: the cached health stays valid
-MAX_PENDING = 256  # queued requests of clients other than the owner; beyond: dropped
+MAX_PENDING = 256  # queued requests of clients other than the owner; beyond: dropped (estops: twice as many)
+MAX_DRAIN = 1024  # requests moved off the socket per loop (a flood faster than the drain cannot hold it there)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,7 +205,7 @@ class RobotServer:
         if self._zap is not None:
             self._zap.answer_pending()
         owner = self.claims.current
-        while True:
+        for _ in range(MAX_DRAIN):
             try:
                 frames = self._sock.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
@@ -215,8 +216,8 @@ class RobotServer:
             identity = self._user(frames[-1]).encode() or frames[0].bytes
             if len(self._others) < MAX_PENDING and self._limiter.allow(identity):
                 self._others.append(frames)
-            elif _is_estop(frames[-1].bytes):
-                self._others.appendleft(frames)  # a safety stop is never dropped
+            elif len(self._others) < 2 * MAX_PENDING and _is_estop(frames[-1].bytes):
+                self._others.appendleft(frames)  # a safety stop is not dropped for the rate limit
             else:
                 self._rate_limited += 1
 

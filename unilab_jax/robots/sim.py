@@ -288,7 +288,8 @@ class SimRobot(Robot):
         # The joint target itself must put the tcp inside the box and the cone (an unreachable target pose
         # makes IK trade position for orientation): else scale it back towards the measured joints.
         scale, delta = 1.0, q_cmd - q_now
-        while scale > 1e-3 and not self._pose_ok(q_now + scale * delta, lim.margin / 2, lim.cone_slack_deg / 2):
+        while scale > 1e-3 and not self._pose_ok(q_now + scale * delta, lim.margin / 2,
+                                                 limits.KINEMATIC_CONE_SLACK_DEG):
             scale /= 2
         self._hit("kinematics", scale < 1.0)
         return q_now + (scale if scale > 1e-3 else 0.0) * delta
@@ -314,7 +315,8 @@ class SimRobot(Robot):
         speed = float(np.linalg.norm(vel[3:]))
         force = limits.contact_force(self.model, self.data, self._arm_bodies)
         for name, beyond, what in (
-                ("pose", not self._pose_within(self.data, 0.0, lim.cone_slack_deg), "tcp pose outside the workspace"),
+                ("pose", not self._pose_within(self.data, lim.pose_slack, lim.cone_slack_deg),
+                 "tcp pose outside the workspace"),
                 ("tcp_speed", speed > lim.max_tcp_speed, f"tcp speed {speed:.2f} m/s > {lim.max_tcp_speed}"),
                 ("force", force > lim.max_force, f"contact force {force:.0f} N > {lim.max_force:g}")):
             if beyond:
