@@ -84,7 +84,7 @@ def test_force_and_tcp_speed_limits_stop_the_robot_until_cleared(limit, action, 
     r.step(np.zeros(7, np.float32))  # holding still is allowed again
 
 
-def test_clamp_to_cone_and_limit_joint_step():
+def test_clamp_to_cone_limit_joint_step_and_violation():
     down = np.array([0.0, 1.0, 0.0, 0.0])  # the home orientation: tcp pointing down
     assert limits.tilt(down) == pytest.approx(0.0, abs=1e-9)
     tilted = ik.quat_mul(ik.quat_from_rotvec([1.2, 0, 0]), down)
@@ -95,5 +95,9 @@ def test_clamp_to_cone_and_limit_joint_step():
     assert not clamped and same is down
     q, limited = limits.limit_joint_step(np.zeros(3), np.array([0.4, -0.1, 0.0]), 0.2)
     assert limited and q == pytest.approx([0.2, -0.05, 0.0])
+    assert LIMITS.violation(np.array([0.5, 0.0, 0.2]), down) == 0.0
+    assert LIMITS.violation(np.array([0.83, 0.0, 0.2]), down) == pytest.approx(0.03)
+    assert LIMITS.violation(np.array([0.83, 0.0, 0.2]), down, slack=0.02) == pytest.approx(0.01)
+    assert LIMITS.violation(np.array([0.5, 0.0, 0.2]), tilted) == pytest.approx(1.2 - np.radians(60))
     with pytest.raises(ValueError, match="box_low"):
         limits.SafetyLimits(box_low=(1.0, 0, 0), box_high=(0.5, 1, 1))

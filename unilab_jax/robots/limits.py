@@ -66,10 +66,12 @@ class SafetyLimits:
         """The box commanded targets are clamped into (the workspace shrunk by ``margin``)."""
         return np.asarray(self.box_low) + self.margin, np.asarray(self.box_high) - self.margin
 
-    def in_box(self, pos: np.ndarray, slack: float = 0.0) -> bool:
-        """Whether ``pos`` [3] is inside the box grown by ``slack`` (shrunk when negative)."""
+    def violation(self, pos: np.ndarray, quat: np.ndarray, slack: float = 0.0, cone_slack_deg: float = 0.0) -> float:
+        """How far the pose (pos [3], quat [4]) is outside the box grown by ``slack`` (shrunk when negative), in
+        metres, plus how far its tilt is beyond ``cone_deg + cone_slack_deg``, in radians; 0 inside both."""
         low, high = np.asarray(self.box_low) - slack, np.asarray(self.box_high) + slack
-        return bool(np.all(pos >= low) and np.all(pos <= high))
+        out = float(np.max(np.maximum(np.maximum(low - pos, pos - high), 0.0)))
+        return out + max(0.0, tilt(quat) - math.radians(self.cone_deg + cone_slack_deg))
 
 
 def tilt(quat: np.ndarray) -> float:

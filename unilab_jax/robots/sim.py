@@ -11,7 +11,10 @@
 * Gaussian noise on proprioception; RGB cameras (``front``, ``wrist``) rendered with ``mujoco.Renderer``;
 * resets that block for ``reset_seconds / speed`` wall seconds;
 * end-effector control: the action moves a target tcp pose; damped-least-squares IK turns it into
-  joint-position targets for the arm's servos, so every arm shares one action space.
+  joint-position targets for the arm's servos, so every arm shares one action space;
+* safety limits (``config.limits``, ``robots.limits``): the target pose clamped into the workspace box and
+  orientation cone, the joint targets' step and forward kinematics checked, protective stops on the measured
+  pose, tcp speed and contact force; ``health().limit_hits`` counts each.
 
 Proprioception ``[13]``: tcp position (3), tcp orientation as the first two columns of its rotation
 matrix (6), tcp linear velocity (3), gripper opening in [0, 1] (1 = open).
@@ -286,25 +289,26 @@ class SimRobot(Robot):
                                                  lim.max_joint_speed / c.control_hz)
         self._hit("joint_velocity", limited)
         # The joint target itself must put the tcp inside the box and the cone (an unreachable target pose
-        # makes IK trade position for orientation): else scale it back towards the measured joints.
-        scale, delta = 1.0, q_cmd - q_now
-        while scale > 1e-3 and not self._pose_ok(q_now + scale * delta, lim.margin / 2,
-                                                 limits.KINEMATIC_CONE_SLACK_DEG):
+        # makes IK trade position for orientation): else scale it back towards the measured joints. A tcp that
+        # is outside already (pushed) may move back, not farther out.
+        allowed, scale, delta = self._command_violation(q_now), 1.0, q_cmd - q_now
+        while scale > 1e-3 and self._command_violation(q_now + scale * delta) > allowed:
             scale /= 2
         self._hit("kinematics", scale < 1.0)
         return q_now + (scale if scale > 1e-3 else 0.0) * delta
 
-    def _pose_ok(self, q: np.ndarray, inset: float, cone_slack_deg: float) -> bool:
-        """Whether joints ``q`` put the tcp ``inset`` inside the box and within the cone (+ slack)."""
+    def _command_violation(self, q: np.ndarray) -> float:
+        """How far joints ``q`` put the tcp outside the box less half the margin and the cone (+ the kinematic
+        slack): ``SafetyLimits.violation`` of their forward kinematics."""
         self._scratch.qpos[:] = self.data.qpos
         self._scratch.qpos[self.ix.qpos] = q
         mujoco.mj_kinematics(self.model, self._scratch)
-        return self._pose_within(self._scratch, -inset, cone_slack_deg)
+        return self._violation(self._scratch, -self.config.limits.margin / 2, limits.KINEMATIC_CONE_SLACK_DEG)
 
-    def _pose_within(self, d: mujoco.MjData, slack: float, cone_slack_deg: float) -> bool:
-        lim, site = self.config.limits, self.ix.tcp_site
-        return lim.in_box(d.site_xpos[site], slack) and (
-            limits.tilt(ik.mat_to_quat(d.site_xmat[site])) <= np.radians(lim.cone_deg + cone_slack_deg))
+    def _violation(self, d: mujoco.MjData, slack: float, cone_slack_deg: float) -> float:
+        site = self.ix.tcp_site
+        return self.config.limits.violation(d.site_xpos[site], ik.mat_to_quat(d.site_xmat[site]), slack,
+                                            cone_slack_deg)
 
     def _check_measured(self) -> None:
         """A protective stop (an estop whose detail names the limit) when the measured tcp pose, tcp speed or
@@ -315,7 +319,7 @@ class SimRobot(Robot):
         speed = float(np.linalg.norm(vel[3:]))
         force = limits.contact_force(self.model, self.data, self._arm_bodies)
         for name, beyond, what in (
-                ("pose", not self._pose_within(self.data, lim.pose_slack, lim.cone_slack_deg),
+                ("pose", self._violation(self.data, lim.pose_slack, lim.cone_slack_deg) > 0,
                  "tcp pose outside the workspace"),
                 ("tcp_speed", speed > lim.max_tcp_speed, f"tcp speed {speed:.2f} m/s > {lim.max_tcp_speed}"),
                 ("force", force > lim.max_force, f"contact force {force:.0f} N > {lim.max_force:g}")):
