@@ -2,8 +2,8 @@
 
     python tests/robots/flood_clients.py ADDRESS SECONDS SOCKETS [SERVER_KEY CLIENT_KEY_SECRET_FILE]
 
-``SOCKETS`` DEALER sockets send ``health`` requests in pairs as fast as the server answers them (and again
-after 50 ms without an answer, so dropped requests do not slow the flood); with keys, the sockets use the
+``SOCKETS`` DEALER sockets send ``health`` requests four at a time as fast as the server answers them (and
+again after 50 ms without an answer, so dropped requests do not slow the flood); with keys, the sockets use the
 admitted client key and, beside them, a new socket with an unknown random key connects every 5 ms (each one a
 refused handshake). Runs at nice 10. Prints one line ``replies N sent M attempts K`` at the end.
 """
@@ -20,7 +20,7 @@ from unilab_jax.robots import protocol
 from unilab_jax.robots.keys import load_pair
 
 RESEND_S = 0.05
-BURST = 2
+BURST = 4
 
 
 def flood(address: str, seconds: float, n: int, server_key: bytes = b"", key_file: str = "") -> tuple[int, int, int]:
