@@ -81,9 +81,9 @@ def main(argv):
     from unilab_jax.training.hgdagger import HGDagger
 
     with inventory.Inventory(entries, "pick_place", FLAGS.speed, seed=FLAGS.seed) as inv:
-        report_robots(inv.addresses, "pick_place")
+        report_robots(inv, "pick_place")
         task = tasks.make("robot_pick_place", len(inv.addresses), FLAGS.seed,
-                          {"robots": tuple(inv.addresses), "operator_segment": FLAGS.operator_segment,
+                          {**inv.task_overrides(), "operator_segment": FLAGS.operator_segment,
                            "operator_stall_steps": FLAGS.operator_stall_steps})
         try:
             summary = HGDagger(task, config, seed=FLAGS.seed, logdir=FLAGS.logdir).run()

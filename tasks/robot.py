@@ -55,7 +55,7 @@ from tasks import base
 from unilab_jax.fields import IMAGE_FIELDS
 from unilab_jax.robots.client import RobotClient
 from unilab_jax.robots.interface import Robot, RobotClaimed, RobotDisconnected, RobotError, RobotSpec
-from unilab_jax.robots.inventory import check_address, compatible
+from unilab_jax.robots.inventory import check_address, client_keys, compatible
 from unilab_jax.robots.operator import ExpertOperator, OperatorConfig
 
 KINDS = ("franka", "ur5e")
@@ -70,6 +70,11 @@ class RobotTaskConfig:
     """Configuration of the robot tasks (override any field by name)."""
 
     robots: tuple[str, ...] = ()  # robot server addresses (the inventory); (): in-process simulated robots
+    # Keyed servers (robots.keys): per robot its public key (Z85; "" for a server without keys), and the path of
+    # this client's NAME.key_secret (robots.inventory.Inventory.task_overrides fills them from the TOML); unused
+    # without robots (a saved run played on in-process robots)
+    server_keys: tuple[str, ...] = ()
+    client_key: str = ""
     arm: str = "franka"  # in-process robots only
     episode_length: int = 100  # control steps before truncation (at most the robot's own limit)
     dense_reward: bool = True  # in-process robots only (servers choose theirs: --dense_reward)
@@ -110,6 +115,10 @@ class RobotTaskConfig:
     def __post_init__(self):
         for address in self.robots:
             check_address(address)
+        if self.robots and self.server_keys and len(self.server_keys) != len(self.robots):
+            raise ValueError(f"server_keys needs one key per robot ({len(self.robots)}), got {len(self.server_keys)}")
+        if self.robots and any(self.server_keys) and not self.client_key:
+            raise ValueError("keyed robot servers (server_keys) need client_key, this client's NAME.key_secret")
         if self.episode_length < 1:
             raise ValueError(f"episode_length must be positive, got {self.episode_length}")
         if self.min_envs < 0:
@@ -152,6 +161,7 @@ class RobotTask(base.Task):
         self.slots: list[int] = []  # each env's place in the inventory (its identity)
         try:
             if config.robots:
+                self._keys = client_keys(config.server_keys or ("",) * len(config.robots), config.client_key)
                 if num_envs > len(config.robots):
                     raise ValueError(f"{num_envs} environments need {num_envs} robots; the inventory has "
                                      f"{len(config.robots)}: {list(config.robots)}")
@@ -197,7 +207,7 @@ class RobotTask(base.Task):
     def _try_claim(self, slot: int) -> RobotClient | None:
         """A connected client of the inventory's robot ``slot``, or None if it is claimed or silent."""
         c = self.config
-        client = RobotClient(c.robots[slot], timeout_s=c.timeout_s, lease_s=c.lease_s)
+        client = RobotClient(c.robots[slot], timeout_s=c.timeout_s, lease_s=c.lease_s, keys=self._keys[slot])
         try:
             client.connect()
         except (RobotClaimed, RobotDisconnected):

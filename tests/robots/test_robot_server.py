@@ -62,11 +62,11 @@ def test_malformed_and_oversized_messages_get_error_replies():
         assert unknown["id"] == 7 and "unknown op" in unknown["error"]["message"]
         big = _raw_call(server.address, protocol.request("ping", 8, "c", {"pad": b"x" * 10_000}))
         assert big["error"]["type"] == "BadRequest" and "exceeds the limit of 4096 bytes" in big["error"]["message"]
-        assert _raw_call(server.address, protocol.request("claim", 9, "c"))["ok"]
-        wrong = _raw_call(server.address, protocol.request("step", 10, "c", {"action": [1.0, 2.0]}))
+        token = _raw_call(server.address, protocol.request("claim", 9, "c"))["result"]["token"]
+        wrong = _raw_call(server.address, protocol.request("step", 10, "c", {"action": [1.0, 2.0]}, token))
         assert wrong["error"]["type"] == "ValueError" and "shape" in wrong["error"]["message"]
         # still serving
-        assert _raw_call(server.address, protocol.request("release", 11, "c"))["ok"]
+        assert _raw_call(server.address, protocol.request("release", 11, "c", None, token))["ok"]
         with RobotClient(server.address, client_id="after") as robot:
             robot.reset(seed=0)
             assert robot.step(HOLD).obs["proprio"].shape == (13,)

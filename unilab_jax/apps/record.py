@@ -187,7 +187,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     with inventory.Inventory(entries, args.task.removeprefix("robot_"), args.speed, seed=args.seed,
                              cameras=overrides["cameras"], image_size=args.image_size) as inv:
-        summary = record(inv.addresses, args.task, args.episodes, args.out, args.device, args.seed, overrides)
+        summary = record(inv.addresses, args.task, args.episodes, args.out, args.device, args.seed,
+                         {**overrides, **inv.task_overrides()})
     print(json.dumps(summary), flush=True)
     return 0
 

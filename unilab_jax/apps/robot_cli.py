@@ -9,8 +9,10 @@ Flags beside the shared ones (``unilab_jax.apps.cli``):
 * ``--robots``: a comma list or a ``.toml`` inventory (``unilab_jax.robots.inventory``): ``sim:NAME`` robots are
   started here as local robot servers (``--speed`` times real time, rendering the cameras of the image
   observation, else none; stopped at exit; dense reward or success only: ``--dense_reward``, default the
-  experiment's), ``tcp://HOST:PORT`` robots are servers already running. Each server is asked for its spec and
-  health first (and must render the task's cameras at its ``image_size``).
+  experiment's), ``tcp://HOST:PORT`` robots are servers already running; a TOML inventory names a keyed server's
+  public key (``server_key``) and this client's key pair (``[client] key``), which the workers' clients use
+  (docs/ROBOTS.md, "Deploying a robot server"). Each server is asked for its spec and health first (and must
+  render the task's cameras at its ``image_size``).
 * ``--observation``: what the policy sees besides proprioception: ``images`` (``IMAGE_TASK``: the front camera's
   last 3 frames at 32 x 32, uint8, and ``IMAGE_RECIPE``'s small encoder: both sized for a 2-core CPU;
   ``--task_config=cameras=...,image_size=...,frame_stack=...`` and ``--config encoder_channels=...`` change them),
@@ -94,13 +96,13 @@ def robot_entries() -> list:
     return entries
 
 
-def report_robots(addresses: list[str], task: str) -> list:
-    """Checks every robot of the run (spec, health, one policy for all), prints and returns them (``inventory``'s
-    discovery); exits 2 on a problem."""
+def report_robots(inv: Any, task: str) -> list:
+    """Checks every robot of the inventory ``inv`` (a started ``robots.inventory.Inventory``: spec, health, one
+    policy for all), prints and returns them (``inventory``'s discovery); exits 2 on a problem."""
     from unilab_jax.robots import inventory
 
     try:
-        found = inventory.discover(addresses, task=task)
+        found = inventory.discover(inv.addresses, task=task, keyring=inv.keyring())
     except inventory.InventoryError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
@@ -157,8 +159,8 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     if image_shape and "replay_capacity" not in parse_overrides(FLAGS.config):
         # images make a transition ~100x larger: the ring holds the run's steps at most (all of them, once)
         config = dataclasses.replace(config, replay_capacity=min(config.replay_capacity, run.total_steps))
-    if "robots" in task_overrides:
-        raise FlagError("--task_config=robots=...: give the robots with --robots")
+    if {"robots", "server_keys", "client_key"} & set(task_overrides):
+        raise FlagError("--task_config=robots/server_keys/client_key=...: give the robots and their keys with --robots")
     prior = algos.info(module).prior_data
     if not prior and (FLAGS.demos or FLAGS["num_demos"].present):
         raise FlagError(f"--demos / --num_demos: {algo} learns without prior data")
@@ -170,7 +172,7 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     return entries, (run, module, config, task_overrides), task_config
 
 
-def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tuple[str, float]:
+def _demos(inv: Any, run: Any, task_overrides: dict[str, Any]) -> tuple[str, float]:
     """The demonstrations folder and the robot seconds this run spent recording it (0 when given or reused)."""
     from unilab_jax.apps import record
 
@@ -181,8 +183,8 @@ def _demos(addresses: list[str], run: Any, task_overrides: dict[str, Any]) -> tu
         return out, 0.0
     partial = out + ".partial"  # renamed into place once complete: a crash never leaves half a recording
     shutil.rmtree(partial, ignore_errors=True)
-    summary = record.record(addresses, run.task, FLAGS.num_demos, partial, "expert", seed=run.seed,
-                            overrides=task_overrides)
+    summary = record.record(inv.addresses, run.task, FLAGS.num_demos, partial, "expert", seed=run.seed,
+                            overrides={**task_overrides, **inv.task_overrides()})
     os.replace(partial, out)
     print(f"demonstrations: {summary['episodes']} episodes ({summary['successes']} successful, "
           f"{summary['transitions']} transitions, {summary['robot_seconds']:.0f} robot-s) in {out}", flush=True)
@@ -199,14 +201,14 @@ def _train(validated: tuple, dense_reward: bool) -> None:
     dense = dense_reward if FLAGS.dense_reward is None else FLAGS.dense_reward
     with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense,
                              cameras=task_config.cameras, image_size=task_config.image_size) as inv:
-        found = report_robots(inv.addresses, robot_task)
+        found = report_robots(inv, robot_task)
         if task_config.cameras:
             _check_cameras(found, task_config, config)
         demo_s = 0.0
         if algos.info(module).prior_data:
-            prior_dir, demo_s = _demos(inv.addresses, run, task_overrides)
+            prior_dir, demo_s = _demos(inv, run, task_overrides)
             config = dataclasses.replace(config, prior_dir=prior_dir)
-        overrides = {**task_overrides, "robots": tuple(inv.addresses)}
+        overrides = {**task_overrides, **inv.task_overrides()}
         trainer = Trainer(run, module, config, overrides, start_time=PROCESS_START,
                           eval_overrides={"min_envs": 1, "connect_timeout_s": EVAL_CONNECT_S})
         try:

@@ -8,7 +8,11 @@
   and scripted experts.
 * ``server`` / ``client`` / ``protocol`` / ``serve``: a robot server process per robot over ZeroMQ
   (``python -m unilab_jax.robots.serve --robot=franka --task=pick_place --port=5555``) and
-  ``RobotClient(address)``, which implements ``Robot``.
+  ``RobotClient(address)``, which implements ``Robot``; ``access`` (claims owned by a secret token and the
+  client's key, rate limits, the ZAP handler that admits allow-listed CURVE keys) and ``keys``
+  (``python -m unilab_jax.robots.keys``: key pairs).
+* ``limits``: ``SafetyLimits``, the workspace box, orientation cone, joint and tcp speed and contact-force
+  limits a robot enforces on every step (protective stops), counted in ``Health.limit_hits``.
 * ``inventory``: which robots a run uses (``--robots``), local simulated servers for them, discovery.
 * ``operator`` / ``teleop``: the operator channel (a person or the scripted expert overriding the policy)
   and teleoperation devices.

@@ -10,7 +10,10 @@ Every call waits at most ``timeout_s`` plus the time the operation takes by cont
 period for ``step``, ``spec.reset_wall_s`` for ``reset``); a server that does not answer in time makes
 the call raise ``RobotDisconnected`` and the client reports ``health().state == "disconnected"``
 until the next successful call. ``heartbeat_s`` (default ``lease_s / 3``) runs a background thread
-that renews the claim while the caller is busy elsewhere (e.g. training between episodes).
+that renews the claim while the caller is busy elsewhere (e.g. training between episodes). The claim's
+secret token (``robots.access``) goes with every owner operation. ``keys`` (``robots.keys.ClientKeys``: the
+client's pair and the server's public key) are needed for a keyed server, which stays silent for clients it
+does not admit (the call then raises RobotDisconnected).
 """
 
 from __future__ import annotations
@@ -27,15 +30,17 @@ import zmq
 
 from unilab_jax.robots import protocol
 from unilab_jax.robots.interface import Health, Robot, RobotDisconnected, RobotError, RobotSpec, Step, check_action
+from unilab_jax.robots.keys import ClientKeys
 
 
 class _Channel:
     """One DEALER socket with request ids; replies to earlier (timed-out) requests are discarded."""
 
-    def __init__(self, ctx: zmq.Context, address: str, client_id: str):
+    def __init__(self, ctx: zmq.Context, address: str, client_id: str, keys: ClientKeys | None = None):
         self.address = address
         self.client_id = client_id
         self._ctx = ctx
+        self._keys = keys
         self._ids = itertools.count(1)
         self._sock = None
         self._open()
@@ -43,13 +48,16 @@ class _Channel:
     def _open(self) -> None:
         self._sock = self._ctx.socket(zmq.DEALER)
         self._sock.setsockopt(zmq.LINGER, 0)
+        if self._keys is not None:
+            self._sock.curve_serverkey = self._keys.server
+            self._sock.curve_publickey, self._sock.curve_secretkey = self._keys.public, self._keys.secret
         self._sock.connect(self.address)
 
-    def call(self, op: str, args: dict[str, Any] | None, timeout_s: float) -> Any:
+    def call(self, op: str, args: dict[str, Any] | None, timeout_s: float, token: str = "") -> Any:
         if timeout_s <= 0:  # nothing is sent that could still act after the caller gave up
             raise RobotDisconnected(f"robot server {self.address}: no time left to send {op!r}")
         req_id = next(self._ids)
-        self._sock.send(protocol.request(op, req_id, self.client_id, args))
+        self._sock.send(protocol.request(op, req_id, self.client_id, args, token))
         deadline = time.monotonic() + timeout_s
         while True:
             left = deadline - time.monotonic()
@@ -57,7 +65,9 @@ class _Channel:
                 # A fresh socket: a late reply to this request must not be read as the next one's.
                 self._sock.close(0)
                 self._open()
-                raise RobotDisconnected(f"robot server {self.address} did not answer {op!r} within {timeout_s:.2f} s")
+                refused = " (or refused this client's key)" if self._keys is not None else ""
+                raise RobotDisconnected(f"robot server {self.address} did not answer {op!r} within {timeout_s:.2f} s"
+                                        f"{refused}")
             reply = protocol.unpack(self._sock.recv())
             if reply.get("id") != req_id:
                 continue
@@ -69,10 +79,10 @@ class _Channel:
         self._sock.close(0)
 
 
-def query(address: str, timeout_s: float = 1.0) -> tuple[RobotSpec, Health]:
+def query(address: str, timeout_s: float = 1.0, keys: ClientKeys | None = None) -> tuple[RobotSpec, Health]:
     """A served robot's spec and health without claiming it (for inventories); RobotDisconnected if silent."""
     ctx = zmq.Context()
-    chan = _Channel(ctx, address, f"query-{uuid.uuid4().hex[:12]}")
+    chan = _Channel(ctx, address, f"query-{uuid.uuid4().hex[:12]}", keys)
     try:
         spec = RobotSpec.from_dict(chan.call("spec", None, timeout_s))
         health = chan.call("health", None, timeout_s)
@@ -86,7 +96,7 @@ class RobotClient(Robot):
     """A Robot whose calls go to a robot server at ``address`` (``tcp://host:port``)."""
 
     def __init__(self, address: str, client_id: str | None = None, timeout_s: float = 2.0, lease_s: float = 5.0,
-                 heartbeat_s: float | None = None):
+                 heartbeat_s: float | None = None, keys: ClientKeys | None = None):
         if timeout_s <= 0 or lease_s <= 0:
             raise ValueError(f"timeout_s and lease_s must be positive, got {timeout_s}, {lease_s}")
         self.address = address
@@ -94,6 +104,8 @@ class RobotClient(Robot):
         self.timeout_s = float(timeout_s)
         self.lease_s = float(lease_s)
         self.heartbeat_s = lease_s / 3 if heartbeat_s is None else float(heartbeat_s)
+        self.keys = keys
+        self._token = ""  # the claim's secret (robots.access)
         self._ctx: zmq.Context | None = None
         self._chan: _Channel | None = None
         self._lock = threading.Lock()
@@ -111,9 +123,9 @@ class RobotClient(Robot):
         Also the way back after RobotDisconnected or close(): e.g. once a restarted server is up."""
         if self._chan is None:
             self._ctx = zmq.Context()
-            self._chan = _Channel(self._ctx, self.address, self.client_id)
+            self._chan = _Channel(self._ctx, self.address, self.client_id, self.keys)
         self.spec = RobotSpec.from_dict(self._call("spec", None))
-        self._call("claim", {"lease_s": self.lease_s})
+        self._token = self._call("claim", {"lease_s": self.lease_s})["token"]
         if self.heartbeat_s > 0 and self._beat is None:
             self._stop.clear()
             self._beat = threading.Thread(target=self._heartbeat_loop, name=f"heartbeat-{self.client_id}",
@@ -187,7 +199,7 @@ class RobotClient(Robot):
             self._disconnected = True
             raise RobotDisconnected(f"robot server {self.address}: {op!r} could not be sent within {budget:.2f} s")
         try:
-            result = self._chan.call(op, args, budget - (time.monotonic() - start))
+            result = self._chan.call(op, args, budget - (time.monotonic() - start), self._token)
         except RobotDisconnected:
             self._timeouts += 1
             self._disconnected = True

@@ -124,6 +124,9 @@ class Health:
     detail: str = ""
     owner: str = ""  # id of the client holding the robot (served robots; "" when free)
     overruns: int = 0  # steps whose own work (simulation, rendering) took longer than the control period
+    # safety-limit counters (robots.limits.LIMIT_HITS: commands clamped, protective stops); served robots add
+    # the server's (rate_limited: requests dropped by the per-client rate limit)
+    limit_hits: dict[str, int] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if self.state not in HEALTH_STATES:

@@ -5,16 +5,20 @@ An inventory is a comma list (``--robots``) or a TOML file::
     sim:franka_emika_panda,sim:universal_robots_ur5e,tcp://192.168.1.20:5555
 
     # robots.toml
+    [client]
+    key = "keys/trainer.key_secret"       # this client's key pair (python -m unilab_jax.robots.keys new)
     [[robot]]
     sim = "franka_emika_panda"
     [[robot]]
     address = "tcp://192.168.1.20:5555"
+    server_key = "keys/franka1.key"       # the server's public key: the server speaks CURVE
 
 ``sim:NAME`` starts a local robot server subprocess for the Menagerie model NAME (on a free loopback
 port; the cameras a run's image observation needs, else none); ``tcp://HOST:PORT`` is a server that is
-already running. ``discover`` asks each server for its spec and health (without claiming it) and refuses robots
-a policy cannot share (another task, other observation or action sizes). Imports the standard library and this
-package only.
+already running; with ``server_key`` (a ``.key`` file, relative to the TOML's folder) it is a keyed server,
+reached with the ``[client] key`` (``robots.keys``; the server must admit that key). ``discover`` asks each
+server for its spec and health (without claiming it) and refuses robots a policy cannot share (another task,
+other observation or action sizes). Imports the standard library, zmq (keys) and this package only.
 """
 
 from __future__ import annotations
@@ -26,7 +30,9 @@ import re
 import subprocess
 import sys
 import threading
+from typing import Any
 
+from unilab_jax.robots import keys
 from unilab_jax.robots.client import query
 from unilab_jax.robots.gl import find_gl_backend
 from unilab_jax.robots.interface import Health, RobotDisconnected, RobotSpec
@@ -43,10 +49,14 @@ class InventoryError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class RobotEntry:
-    """One inventory line: ``sim`` (the Menagerie name of a robot to simulate) or ``address``."""
+    """One inventory line: ``sim`` (the Menagerie name of a robot to simulate) or ``address``; a keyed server's
+    ``server_key`` (its public key, Z85) and ``client_key`` (the path of the client's ``.key_secret``)."""
 
     sim: str = ""
     address: str = ""
+    server_key: str = ""
+    client_key: str = ""
+
 
     def __str__(self) -> str:
         return f"sim:{self.sim}" if self.sim else self.address
@@ -83,22 +93,46 @@ def parse(text: str) -> list[RobotEntry]:
                 doc = tomllib.load(f)
         except (OSError, tomllib.TOMLDecodeError) as e:
             raise InventoryError(f"robot inventory {text!r}: {e}") from e
-        rows = doc.get("robot")
-        if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
-            raise InventoryError(f"robot inventory {text!r}: needs [[robot]] tables with sim = NAME or address = URL")
-        items = []
-        for r in rows:
-            if set(r) not in ({"sim"}, {"address"}) or not isinstance(next(iter(r.values())), str):
-                raise InventoryError(f"robot inventory {text!r}: each [[robot]] has one key, sim or address, got {r}")
-            items.append(f"sim:{r['sim']}" if "sim" in r else r["address"])
+        entries = _toml_entries(text, doc)
     else:
         items = [item.strip() for item in text.split(",")]
-    if not items or any(not item for item in items):
-        raise InventoryError(f"no robots in {text!r}: give e.g. sim:franka_emika_panda,tcp://127.0.0.1:5555")
-    entries = [_entry(item) for item in items]
+        if any(not item for item in items):
+            raise InventoryError(f"no robots in {text!r}: give e.g. sim:franka_emika_panda,tcp://127.0.0.1:5555")
+        entries = [_entry(item) for item in items]
     addresses = [e.address for e in entries if e.address]
     if len(set(addresses)) != len(addresses):
         raise InventoryError(f"a robot address is listed twice in {text!r}")
+    return entries
+
+
+def _toml_entries(path: str, doc: dict) -> list[RobotEntry]:
+    rows, client = doc.get("robot"), doc.get("client", {})
+    if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) for r in rows):
+        raise InventoryError(f"robot inventory {path!r}: needs [[robot]] tables with sim = NAME or address = URL")
+    if set(doc) - {"robot", "client"} or not isinstance(client, dict) or set(client) - {"key"}:
+        raise InventoryError(f"robot inventory {path!r}: only [client] key = FILE and [[robot]] tables are known")
+    folder = os.path.dirname(os.path.abspath(path))
+    client_key = os.path.join(folder, str(client["key"])) if "key" in client else ""
+    entries = []
+    for r in rows:
+        kind = set(r) - {"server_key"}
+        if kind not in ({"sim"}, {"address"}) or not all(isinstance(v, str) for v in r.values()):
+            raise InventoryError(f"robot inventory {path!r}: each [[robot]] has sim = NAME or address = URL (and a "
+                                 f"server its server_key = FILE), got {r}")
+        entry = _entry(f"sim:{r['sim']}" if "sim" in r else r["address"])
+        if "server_key" in r:
+            if entry.sim:
+                raise InventoryError(f"robot inventory {path!r}: sim robots run here without keys, got {r}")
+            if not client_key:
+                raise InventoryError(f"robot inventory {path!r}: {entry.address} has a server_key, so the inventory "
+                                     "needs [client] key = FILE (this client's NAME.key_secret)")
+            try:
+                server_key = keys.load_public(os.path.join(folder, r["server_key"])).decode()
+                keys.load_pair(client_key)
+            except keys.KeyFileError as e:
+                raise InventoryError(f"robot inventory {path!r}: {e}") from e
+            entry = dataclasses.replace(entry, server_key=server_key, client_key=client_key)
+        entries.append(entry)
     return entries
 
 
@@ -175,6 +209,18 @@ class Inventory:
             raise
         return self
 
+    def task_overrides(self) -> dict[str, Any]:
+        """The robot task's fields for these robots: ``robots`` (the addresses) and the keys of keyed servers
+        (``server_keys``, one per robot, "" for none; ``client_key``)."""
+        server_keys = tuple(e.server_key for e in self.entries)
+        return {"robots": tuple(self.addresses), "server_keys": server_keys if any(server_keys) else (),
+                "client_key": next((e.client_key for e in self.entries if e.client_key), "")}
+
+    def keyring(self) -> list[keys.ClientKeys | None]:
+        """Per address, what a client needs to reach it (``discover``'s ``keyring``)."""
+        o = self.task_overrides()
+        return client_keys(o["server_keys"], o["client_key"])
+
     def close(self) -> None:
         for server in self.servers:
             server.stop()
@@ -198,13 +244,22 @@ def compatible(a: RobotSpec, b: RobotSpec) -> str:
     return ", ".join(diffs)
 
 
-def discover(addresses: list[str], task: str = "", timeout_s: float = 2.0) -> list[Discovered]:
-    """Each server's spec and health (not claimed). Raises InventoryError for a server that does not
-    answer, a robot serving another ``task`` (when given), or robots that cannot share one policy."""
+def client_keys(server_keys: tuple[str, ...], client_key: str) -> list[keys.ClientKeys | None]:
+    """Per robot, what a client needs to reach it (None for a server without keys); ``server_keys`` and
+    ``client_key`` as in ``Inventory.task_overrides``. Raises ``keys.KeyFileError`` for an unreadable key file."""
+    pair = keys.load_pair(client_key) if any(server_keys) else None
+    return [keys.ClientKeys(*pair, k.encode()) if k and pair else None for k in server_keys]
+
+
+def discover(addresses: list[str], task: str = "", timeout_s: float = 2.0,
+             keyring: list[keys.ClientKeys | None] | None = None) -> list[Discovered]:
+    """Each server's spec and health (not claimed; ``keyring``: per address, the keys of a keyed server). Raises
+    InventoryError for a server that does not answer, a robot serving another ``task`` (when given), or robots
+    that cannot share one policy."""
     found = []
-    for address in addresses:
+    for i, address in enumerate(addresses):
         try:
-            spec, health = query(address, timeout_s=timeout_s)
+            spec, health = query(address, timeout_s=timeout_s, keys=keyring[i] if keyring else None)
         except RobotDisconnected as e:
             raise InventoryError(f"no robot server answers at {address} ({e})") from e
         if task and spec.task != task:

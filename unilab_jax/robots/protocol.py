@@ -1,6 +1,7 @@
 """Wire format of the robot server: msgpack maps, numpy arrays as msgpack extension type 1.
 
-Request: ``{"op": str, "id": int, "client": str, "args": {...}}``.
+Request: ``{"op": str, "id": int, "client": str, "token": str, "args": {...}}`` (``token``: the secret a
+claim answered, for the owner's operations; "" otherwise).
 Reply: ``{"id": int, "ok": True, "result": ...}`` or ``{"id": int, "ok": False, "error": {"type": str,
 "message": str}}``. An array travels as ``ExtType(1, msgpack([dtype.str, shape, raw bytes]))``; only
 plain numeric / bool dtypes are accepted (never object arrays).
@@ -65,20 +66,22 @@ def unpack(data: bytes) -> Any:
         raise interface.BadRequest(f"undecodable message ({type(e).__name__}: {e})") from None
 
 
-def request(op: str, req_id: int, client: str, args: dict[str, Any] | None = None) -> bytes:
-    return pack({"op": op, "id": req_id, "client": client, "args": args or {}})
+def request(op: str, req_id: int, client: str, args: dict[str, Any] | None = None, token: str = "") -> bytes:
+    return pack({"op": op, "id": req_id, "client": client, "token": token, "args": args or {}})
 
 
-def parse_request(msg: Any) -> tuple[str, int, str, dict[str, Any]]:
-    """Validates an unpacked request; returns (op, id, client, args) or raises BadRequest."""
+def parse_request(msg: Any) -> tuple[str, int, str, str, dict[str, Any]]:
+    """Validates an unpacked request; returns (op, id, client, token, args) or raises BadRequest."""
     if not isinstance(msg, dict):
         raise interface.BadRequest(f"a request must be a map, got {type(msg).__name__}")
     op, req_id, client, args = msg.get("op"), msg.get("id"), msg.get("client"), msg.get("args", {})
-    if not isinstance(op, str) or not isinstance(req_id, int) or not isinstance(client, str) or not client:
-        raise interface.BadRequest("a request needs op (str), id (int) and a non-empty client (str)")
+    token = msg.get("token", "")
+    id_ok = isinstance(req_id, int) and not isinstance(req_id, bool)
+    if not isinstance(op, str) or not id_ok or not isinstance(client, str) or not client or not isinstance(token, str):
+        raise interface.BadRequest("a request needs op (str), id (int), a non-empty client (str) and token (str)")
     if not isinstance(args, dict):
         raise interface.BadRequest(f"args must be a map, got {type(args).__name__}")
-    return op, req_id, client, args
+    return op, req_id, client, token, args
 
 
 def ok(req_id: int, result: Any) -> bytes:

@@ -11,7 +11,10 @@
 * Gaussian noise on proprioception; RGB cameras (``front``, ``wrist``) rendered with ``mujoco.Renderer``;
 * resets that block for ``reset_seconds / speed`` wall seconds;
 * end-effector control: the action moves a target tcp pose; damped-least-squares IK turns it into
-  joint-position targets for the arm's servos, so every arm shares one action space.
+  joint-position targets for the arm's servos, so every arm shares one action space;
+* safety limits (``config.limits``, ``robots.limits``): the target pose clamped into the workspace box and
+  orientation cone, the joint targets' step and forward kinematics checked, protective stops on the measured
+  pose, tcp speed and contact force; ``health().limit_hits`` counts each.
 
 Proprioception ``[13]``: tcp position (3), tcp orientation as the first two columns of its rotation
 matrix (6), tcp linear velocity (3), gripper opening in [0, 1] (1 = open).
@@ -27,7 +30,7 @@ import time
 import mujoco
 import numpy as np
 
-from unilab_jax.robots import ik, scenes
+from unilab_jax.robots import ik, limits, scenes
 from unilab_jax.robots.interface import (
     Health,
     Robot,
@@ -44,8 +47,7 @@ PROPRIO_DIM = 13
 CAMERAS = ("front", "wrist")
 # The tcp may wander this far from its measured position (no wind-up while pushing against contact).
 MAX_TARGET_LEAD = 0.05
-WORKSPACE_LOW = (0.2, -0.45, 0.005)
-WORKSPACE_HIGH = (0.8, 0.45, 0.45)
+TARGET_LOW, TARGET_HIGH = limits.SafetyLimits().target_box()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,6 +69,7 @@ class SimConfig:
     max_delta_rot: float = 0.25  # radians per step at |action| = 1
     tcp_start_noise: float = 0.02  # uniform +- offset of the starting tcp position (x, y)
     max_hold_periods: int = 10
+    limits: limits.SafetyLimits = limits.SafetyLimits()
     seed: int = 0
 
     def __post_init__(self):
@@ -79,8 +82,13 @@ class SimConfig:
             raise ValueError(f"unknown cameras {sorted(unknown)}; available: {CAMERAS}")
         if not 16 <= self.image_size <= 256:
             raise ValueError(f"image_size must be in [16, 256], got {self.image_size}")
-        if self.latency_s < 0 or self.jitter_s < 0 or self.proprio_noise < 0:
-            raise ValueError("latency_s, jitter_s and proprio_noise must be >= 0")
+        if not self.speed > 0 or not self.control_hz > 0 or not self.timestep > 0:
+            raise ValueError(f"speed, control_hz and timestep must be positive, got {self.speed}, {self.control_hz}, "
+                             f"{self.timestep}")
+        finite = (self.latency_s, self.jitter_s, self.proprio_noise, self.reset_seconds)
+        if not all(np.isfinite(v) and v >= 0 for v in finite):
+            raise ValueError(f"latency_s, jitter_s, proprio_noise and reset_seconds must be finite and >= 0, got "
+                             f"{finite}")
         substeps = 1.0 / (self.control_hz * self.timestep)
         if abs(substeps - round(substeps)) > 1e-6:
             raise ValueError(f"1 / (control_hz * timestep) = {substeps} must be an integer")
@@ -103,10 +111,11 @@ def proprio_vector(tcp_pos: np.ndarray, tcp_mat: np.ndarray, tcp_vel: np.ndarray
     return np.concatenate([tcp_pos, mat[:, 0], mat[:, 1], tcp_vel, [opening]])
 
 
-def apply_delta(pos: np.ndarray, quat: np.ndarray, action: np.ndarray, max_dpos: float,
-                max_drot: float) -> tuple[np.ndarray, np.ndarray]:
-    """New target (pos [3], quat [4]) after a clipped action [7]: world-frame translation and rotation."""
-    new_pos = np.clip(pos + action[:3] * max_dpos, WORKSPACE_LOW, WORKSPACE_HIGH)
+def apply_delta(pos: np.ndarray, quat: np.ndarray, action: np.ndarray, max_dpos: float, max_drot: float,
+                low: np.ndarray = TARGET_LOW, high: np.ndarray = TARGET_HIGH) -> tuple[np.ndarray, np.ndarray]:
+    """New target (pos [3] clipped to [low, high], quat [4]) after a clipped action [7]: world-frame translation
+    and rotation."""
+    new_pos = np.clip(pos + action[:3] * max_dpos, low, high)
     new_quat = ik.quat_mul(ik.quat_from_rotvec(action[3:6] * max_drot), quat)
     return new_pos, new_quat / np.linalg.norm(new_quat)
 
@@ -141,6 +150,9 @@ class SimRobot(Robot):
         self._detail = ""
         self._ready = False
         self._counts = {"steps": 0, "late_actions": 0, "resets": 0, "overruns": 0}
+        self._limit_hits = dict.fromkeys(limits.LIMIT_HITS, 0)
+        # the arm's and gripper's bodies (their contact forces are limited): the tree under the hand's root
+        self._arm_bodies = self.model.body_rootid == self.model.body_rootid[self.ix.hand_body]
         self._pending: list[tuple[int, np.ndarray]] = []  # (substeps until applied, ctrl [nu])
         self._last_return: float | None = None
         self._t = 0
@@ -202,18 +214,15 @@ class SimRobot(Robot):
         start = time.perf_counter()
         a = check_action(action)
         if self._state == "estopped":
-            raise RobotEstopped("emergency stop engaged: call clear_estop() or reset()")
+            raise RobotEstopped(f"emergency stop engaged{f' ({self._detail})' if self._detail else ''}: call "
+                                "clear_estop() or reset()")
         if self._state == "faulted":
             raise RobotFaulted(f"robot faulted ({self._detail}): call reset()")
         if not self._ready:
             raise RobotError("call reset() before step()")
         late = self._hold_missed_periods(start)
-        self._target_pos, self._target_quat = apply_delta(self._target_pos, self._target_quat, a,
-                                                          self.config.max_delta_pos, self.config.max_delta_rot)
-        tcp = self.data.site_xpos[self.ix.tcp_site]
-        self._target_pos = tcp + np.clip(self._target_pos - tcp, -MAX_TARGET_LEAD, MAX_TARGET_LEAD)
         ctrl = self.data.ctrl.copy()
-        ctrl[self.ix.ctrl] = self._ik(self.data.qpos[self.ix.qpos], self._target_pos, self._target_quat)
+        ctrl[self.ix.ctrl] = self._arm_command(a)
         ctrl[self.ix.gripper_ctrl] = gripper_ctrl(a[6], self.info)
         self._pending.append((self._delay_substeps(), ctrl))
         self._simulate_period()
@@ -222,6 +231,7 @@ class SimRobot(Robot):
         if not np.all(np.isfinite(self.data.qpos)):
             self._state, self._detail, self._ready = "faulted", "simulation diverged", False
             raise RobotFaulted("simulation diverged: call reset()")
+        self._check_measured()
         obs = self._observe()
         state = self.task.state(self.model, self.data)
         tcp = self.data.site_xpos[self.ix.tcp_site]
@@ -248,16 +258,78 @@ class SimRobot(Robot):
 
     def clear_estop(self) -> None:
         if self._state == "estopped":
-            self._state = "ok"
+            self._state, self._detail = "ok", ""
             self._last_return = time.perf_counter()
 
     def health(self) -> Health:
-        return Health(self._state, detail=self._detail, **self._counts)
+        return Health(self._state, detail=self._detail, limit_hits=dict(self._limit_hits), **self._counts)
 
     def close(self) -> None:
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+    # ---------------------------------------------------------------------------------------------
+    # Safety limits (robots.limits)
+    # ---------------------------------------------------------------------------------------------
+    def _arm_command(self, a: np.ndarray) -> np.ndarray:
+        """The arm's joint targets for action ``a``, inside every command limit (each clamp counted)."""
+        lim, c = self.config.limits, self.config
+        low, high = lim.target_box()
+        pos, quat = apply_delta(self._target_pos, self._target_quat, a, c.max_delta_pos, c.max_delta_rot,
+                                low=np.full(3, -np.inf), high=np.full(3, np.inf))
+        inside = np.clip(pos, low, high)
+        self._hit("workspace", not np.array_equal(inside, pos))
+        self._target_quat, clamped = limits.clamp_to_cone(quat, np.radians(lim.cone_deg))
+        self._hit("orientation", clamped)
+        tcp = self.data.site_xpos[self.ix.tcp_site]
+        self._target_pos = np.clip(tcp + np.clip(inside - tcp, -MAX_TARGET_LEAD, MAX_TARGET_LEAD), low, high)
+        q_now = self.data.qpos[self.ix.qpos].copy()
+        q_cmd, limited = limits.limit_joint_step(q_now, self._ik(q_now, self._target_pos, self._target_quat),
+                                                 lim.max_joint_speed / c.control_hz)
+        self._hit("joint_velocity", limited)
+        # The joint target itself must put the tcp inside the box and the cone (an unreachable target pose
+        # makes IK trade position for orientation): else scale it back towards the measured joints. A tcp that
+        # is outside already (pushed) may move back, not farther out.
+        allowed, scale, delta = self._command_violation(q_now), 1.0, q_cmd - q_now
+        while scale > 1e-3 and self._command_violation(q_now + scale * delta) > allowed:
+            scale /= 2
+        self._hit("kinematics", scale < 1.0)
+        return q_now + (scale if scale > 1e-3 else 0.0) * delta
+
+    def _command_violation(self, q: np.ndarray) -> float:
+        """How far joints ``q`` put the tcp outside the box less half the margin and the cone (+ the kinematic
+        slack): ``SafetyLimits.violation`` of their forward kinematics."""
+        self._scratch.qpos[:] = self.data.qpos
+        self._scratch.qpos[self.ix.qpos] = q
+        mujoco.mj_kinematics(self.model, self._scratch)
+        return self._violation(self._scratch, -self.config.limits.margin / 2, limits.KINEMATIC_CONE_SLACK_DEG)
+
+    def _violation(self, d: mujoco.MjData, slack: float, cone_slack_deg: float) -> float:
+        site = self.ix.tcp_site
+        return self.config.limits.violation(d.site_xpos[site], ik.mat_to_quat(d.site_xmat[site]), slack,
+                                            cone_slack_deg)
+
+    def _check_measured(self) -> None:
+        """A protective stop (an estop whose detail names the limit) when the measured tcp pose, tcp speed or
+        a contact force is beyond its limit."""
+        lim = self.config.limits
+        vel = np.zeros(6)
+        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self.ix.tcp_site, vel, 0)
+        speed = float(np.linalg.norm(vel[3:]))
+        force = limits.contact_force(self.model, self.data, self._arm_bodies)
+        for name, beyond, what in (
+                ("pose", self._violation(self.data, lim.pose_slack, lim.cone_slack_deg) > 0,
+                 "tcp pose outside the workspace"),
+                ("tcp_speed", speed > lim.max_tcp_speed, f"tcp speed {speed:.2f} m/s > {lim.max_tcp_speed}"),
+                ("force", force > lim.max_force, f"contact force {force:.0f} N > {lim.max_force:g}")):
+            if beyond:
+                self._hit(name, True)
+                self.estop()
+                self._detail = f"protective stop: {what}"
+
+    def _hit(self, name: str, hit: bool) -> None:
+        self._limit_hits[name] += int(hit)
 
     # ---------------------------------------------------------------------------------------------
     # Simulation
