@@ -18,9 +18,10 @@ A task composes one ``TerrainState`` (``tasks/go1_rough.py``: ``go1_joystick_rou
 * metrics: ``episode_metrics`` (``METRICS``: the ended episodes' ``terrain_level`` and the level histogram
   ``terrain_level_<k>``, logged by the trainer as ``episode/...``); ``TerrainEval``, the evaluation tracker:
   env i on column ``i mod columns`` at a level of the upper half (``levels // 2`` and above), curricula frozen,
-  full command ranges; it reports the walking metric's numbers overall (the rough-terrain walking criterion is
-  ``metrics.WALKING`` on them) and per terrain type (``walking_<type>`` 1/0, ``tracking_error_<type>``,
-  ``fall_rate_<type>``).
+  full command ranges; it reports the walking metric's numbers overall, the lowest evaluated and the top level,
+  the rough-terrain walking criterion ``rough_terrain_walking`` (1/0: ``metrics.WALKING.met_on_rough``, the walking
+  criterion met on levels >= half the top level) and per terrain type (``walking_<type>`` 1/0,
+  ``tracking_error_<type>``, ``fall_rate_<type>``).
 
 Each worker keeps its own curricula (levels of its envs, command fraction); every worker builds the same terrain
 from ``terrain_seed``. The initial levels come from the task seed: U{0, ..., max_init_level}.
@@ -288,7 +289,8 @@ class TerrainEval:
         self._sums = np.zeros((m, 2))  # per env: tracking error, yaw-rate error
         self._count = np.zeros(m)
         self.types = tuple(dict.fromkeys(task.rough.terrain.columns))
-        self.LOGGED = ("tracking_error", "yaw_rate_error", "fall_rate", "terrain_level",
+        self.LOGGED = ("tracking_error", "yaw_rate_error", "fall_rate", "terrain_level", "terrain_level_min",
+                       "terrain_level_top", "rough_terrain_walking",
                        *(f"{k}_{t}" for t in self.types for k in ("walking", "tracking_error", "fall_rate")))
 
     @property
@@ -317,8 +319,10 @@ class TerrainEval:
     def result(self) -> dict[str, float]:
         rough = self._task.rough
         out = {**self._numbers(np.ones(self._task.num_envs, dtype=bool)),
-               "terrain_level": float(rough.levels.mean()), "evaluated_steps": int(self._count.sum()),
+               "terrain_level": float(rough.levels.mean()), "terrain_level_min": float(rough.levels.min()),
+               "terrain_level_top": float(rough.config.terrain_levels - 1), "evaluated_steps": int(self._count.sum()),
                "episodes": self._task.num_envs}
+        out["rough_terrain_walking"] = float(WALKING.met_on_rough(out))
         names = np.asarray(rough.terrain.columns)[rough.cols]
         for t in self.types:
             envs = names == t
