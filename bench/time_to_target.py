@@ -7,6 +7,9 @@ evaluations have reached every goal the configuration is measured by (or at ``--
 
 * walking (every configuration): ``unilab_jax.metrics.WALKING`` on the evaluation's walking metric --
   planar tracking error <= 0.25 m/s, yaw-rate error <= 0.3 rad/s, falls <= 2% (``eval/walking``);
+* on the rough-terrain configurations the rough-terrain criterion instead: the same bounds, met by an evaluation
+  on terrain levels >= half the top level only (``WALKING.met_on_rough``; ``tasks/rough.py``'s evaluation runs
+  on the upper half); their records add the highest mean terrain level of training and when it was reached;
 * an evaluation return ``>= --target`` (Go1 configurations only: the threshold MuJoCo Playground reports,
   kept for comparison; a policy that stands still already earns a large part of it).
 
@@ -18,7 +21,8 @@ best return, throughput, the whole evaluation curve)::
     python bench/time_to_target.py --report          # table + ratios, writes the markdown table
 
 Configurations (``CONFIGS``): ``ppo_lockstep`` / ``appo_async`` / ``fastsac_async`` / ``flashsac_async`` /
-``fastsac_hold`` (Go1), ``go2_flashsac`` (Go2) and ``g1_fastsac`` (G1) run the heterogeneous runtime (CPU
+``fastsac_hold`` (Go1), ``go2_flashsac`` (Go2), ``g1_fastsac`` (G1) and, on rough terrain, ``go1_rough_ppo``,
+``go1_rough_fastsac``, ``go2_rough_flashsac``, ``g1_rough_fastsac`` run the heterogeneous runtime (CPU
 MuJoCo workers, ``--num_workers x --envs_per_worker``, learner on the accelerator); ``mjx_ppo`` /
 ``mjx_fastsac`` the GPU-resident MJX loop (``unilab_jax/training/mjx.py``) on Go1. Every run evaluates
 ``--eval_envs`` episodes (the configuration's, else 32) with the deterministic policy, with the same task,
@@ -86,6 +90,16 @@ CONFIGS: dict[str, dict[str, Any]] = {
                      "flags": ["--utd_mode=free"]},
     "g1_fastsac": {**_OFFPOLICY, "script": "experiments/fastsac_g1.py", "return_target": False,
                    "flags": ["--utd_mode=free"]},
+    # rough terrain (docs/TERRAIN.md): walking is the rough-terrain criterion, judged on the evaluation's upper-half
+    # terrain levels (``metrics.WALKING.met_on_rough``); the records also hold the mean terrain level's maximum
+    "go1_rough_ppo": {"kind": "heterogeneous", "sync": "lockstep", "script": "experiments/ppo_go1_rough.py",
+                      "eval_every": 4_000_000, "eval_envs": 64, "return_target": False, "rough": True},
+    "go1_rough_fastsac": {**_OFFPOLICY, "script": "experiments/fastsac_go1_rough.py", "return_target": False,
+                          "rough": True, "flags": ["--utd_mode=free"]},
+    "go2_rough_flashsac": {**_OFFPOLICY, "script": "experiments/flashsac_go2_rough.py", "return_target": False,
+                           "rough": True, "flags": ["--utd_mode=free"]},
+    "g1_rough_fastsac": {**_OFFPOLICY, "script": "experiments/fastsac_g1_rough.py", "return_target": False,
+                         "rough": True, "flags": ["--utd_mode=free"]},
     "mjx_ppo": {"kind": "mjx", "sync": "lockstep", "script": "experiments/ppo_go1_mjx.py", "eval_every": 10_000_000,
                 "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True},
     "mjx_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
@@ -210,21 +224,34 @@ class MetricsReader:
         return [json.loads(line) for line in lines if line.strip()]
 
 
-def is_walking(row: dict[str, Any]) -> bool:
+def is_walking(row: dict[str, Any], rough: bool = False) -> bool:
     """Whether an evaluation row meets the walking criterion (``metrics.WALKING``, recomputed from the row's
-    numbers so that rows logged before ``eval/walking`` existed are judged alike)."""
-    return WALKING.met(row, prefix="eval/")
+    numbers so that rows logged before ``eval/walking`` existed are judged alike); ``rough``: the rough-terrain
+    criterion (``WALKING.met_on_rough``: met on an evaluation of terrain levels >= half the top level only)."""
+    return WALKING.met_on_rough(row, prefix="eval/") if rough else WALKING.met(row, prefix="eval/")
 
 
-def goals_reached(rows: list[dict[str, Any]], target: float | None) -> bool:
+def goals_reached(rows: list[dict[str, Any]], target: float | None, rough: bool = False) -> bool:
     """Whether the evaluation rows so far reached every goal: walking, and the return ``target`` unless None."""
     evals = [r for r in rows if "eval/return" in r]
-    return any(map(is_walking, evals)) and (target is None or any(r["eval/return"] >= target for r in evals))
+    walked = any(is_walking(r, rough) for r in evals)
+    return walked and (target is None or any(r["eval/return"] >= target for r in evals))
 
 
-def summarize(rows: list[dict[str, Any]], target: float | None) -> dict[str, Any]:
-    """Times to the return ``target`` (None: not a goal of this configuration) and to walking, best return
-    and throughput from a run's metrics rows."""
+def terrain_levels(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The highest mean terrain level of the training rows (``episode/terrain_level``), its wall time and step."""
+    logged = [r for r in rows if "episode/terrain_level" in r and "time/wall_s" in r]
+    if not logged:
+        return {"max_terrain_level": None, "max_terrain_level_wall_s": None, "max_terrain_level_step": None}
+    best = max(logged, key=lambda r: r["episode/terrain_level"])
+    return {"max_terrain_level": best["episode/terrain_level"], "max_terrain_level_wall_s": best["time/wall_s"],
+            "max_terrain_level_step": best["step"]}
+
+
+def summarize(rows: list[dict[str, Any]], target: float | None, rough: bool = False) -> dict[str, Any]:
+    """Times to the return ``target`` (None: not a goal of this configuration) and to walking (``rough``: by the
+    rough-terrain criterion, with the highest mean terrain level), best return and throughput from a run's
+    metrics rows."""
     evals = sorted((r for r in rows if "eval/return" in r), key=lambda r: r["eval/wall_s"])
     train = [r for r in rows if "perf/env_steps_per_s" in r and "time/wall_s" in r]
     out: dict[str, Any] = {"reached": False, "time_to_target_s": None, "train_time_to_target_s": None,
@@ -236,7 +263,7 @@ def summarize(rows: list[dict[str, Any]], target: float | None) -> dict[str, Any
                    env_steps_at_target=hit["step"], return_at_target=hit["eval/return"])
     out.update(walking_reached=False, time_to_walking_s=None, train_time_to_walking_s=None,
                env_steps_at_walking=None, walking_at=None)
-    walk = next(filter(is_walking, evals), None)
+    walk = next((r for r in evals if is_walking(r, rough)), None)
     if walk is not None:
         out.update(walking_reached=True, time_to_walking_s=walk["eval/wall_s"],
                    train_time_to_walking_s=walk.get("eval/train_wall_s", walk["eval/wall_s"]),
@@ -255,6 +282,8 @@ def summarize(rows: list[dict[str, Any]], target: float | None) -> dict[str, Any
         out["env_steps_per_s_median"] = statistics.median(r["perf/env_steps_per_s"] for r in train[1:])
     else:
         out["env_steps_per_s_mean"] = out["env_steps_per_s_median"] = None
+    if rough:
+        out.update(terrain_levels(rows))
     out["first_train_row_wall_s"] = train[0]["time/wall_s"] if train else None
     out["final_env_steps"] = max((r["step"] for r in rows), default=0)
     # [step, wall s, train wall s, return, tracking error, yaw-rate error, fall rate] per evaluation
@@ -300,6 +329,7 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
     """Runs configuration ``name`` once and returns its record (not yet saved)."""
     cfg = cfg or CONFIGS[name]
     target = args.target if cfg["return_target"] else None
+    rough = cfg.get("rough", False)
     stamp = datetime.datetime.now().strftime("%Y%m%d_%H%M%S")
     logdir = os.path.join(args.runs_dir, f"{name}_s{seed}_{stamp}")
     os.makedirs(logdir, exist_ok=True)
@@ -324,9 +354,9 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
                     if "eval/return" in r:
                         walk = " ".join(f"{k} {r.get(f'eval/{k}', math.nan):.3f}" for k in WALKING.KEYS)
                         print(f"[{name} seed {seed}] eval {r['eval/return']:.2f} ({walk}"
-                              f"{', walking' if is_walking(r) else ''}) at {r['step']:,} steps, "
+                              f"{', walking' if is_walking(r, rough) else ''}) at {r['step']:,} steps, "
                               f"{r['eval/wall_s']:.0f} s", flush=True)
-                if not args.no_stop_at_target and goals_reached(rows, target):
+                if not args.no_stop_at_target and goals_reached(rows, target, rough):
                     stopped_by = "target"
                     break
                 if time.time() - t_launch > limit:
@@ -336,11 +366,11 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
             _stop(proc)
     rows += reader.new_rows()
     record = {"config": name, "kind": cfg["kind"], "sync": cfg["sync"], "seed": seed, "target": target,
-              "walking_criterion": dataclasses.asdict(WALKING),
+              "walking_criterion": {**dataclasses.asdict(WALKING), **({"rough": True} if rough else {})},
               "max_seconds": args.max_seconds, "command": cmd[1:], "stopped_by": stopped_by,
               "returncode": proc.returncode, "bench_wall_s": time.time() - t_launch, "logdir": logdir,
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-              **summarize(rows, target)}
+              **summarize(rows, target, rough)}
     if args.metrics_dir and os.path.exists(reader.path):
         os.makedirs(args.metrics_dir, exist_ok=True)
         record["metrics_copy"] = os.path.join(args.metrics_dir, f"{name}_s{seed}_{stamp}.jsonl")

@@ -217,6 +217,9 @@ _REGISTRY: dict[str, _Entry] = {
     "go1_joystick_rough": _builtin("tasks.go1_rough"),
     "go2_joystick_flat": _builtin("tasks.go2_joystick"),
     "g1_walk_flat": _builtin("tasks.g1_walk"),
+    "go2_joystick_rough": _Entry(_ByName("tasks.walking_rough:make_go2"),
+                                 _ByName("tasks.walking_rough:go2_default_config")),
+    "g1_walk_rough": _Entry(_ByName("tasks.walking_rough:make_g1"), _ByName("tasks.walking_rough:g1_default_config")),
     "allegro_rotate": _builtin("tasks.allegro_rotate"),
     "g1_track": _builtin("tasks.g1_track"),
     "robot_pick_place": _Entry(_ByName("tasks.robot:make", "pick_place"), _ByName("tasks.robot:default_config")),
@@ -224,7 +227,7 @@ _REGISTRY: dict[str, _Entry] = {
                                   _ByName("tasks.robot:default_config")),
     **{f"{name}_hist": _history(name)
        for name in ("cartpole_balance", "go1_joystick_flat", "go1_joystick_rough", "go2_joystick_flat",
-                    "allegro_rotate")},
+                    "go2_joystick_rough", "allegro_rotate")},
 }
 
 

@@ -34,11 +34,14 @@ with ``scene_mjx_feetonly_flat_terrain.xml`` and ``randomize.py``), rebuilt on t
   friction U(0.4, 1.0), joint frictionloss x U(0.9, 1.1), armature x U(1.0, 1.05), torso COM
   + U(+-0.05) m, all body masses x U(0.9, 1.1), torso mass + U(+-1) kg, default pose + U(+-0.05);
   optionally motor strength (``dr_motor_strength``: each motor's PD torque, i.e. Kp and Kd, scaled by a
-  per-motor factor; off by default, which keeps Playground parity and the random stream unchanged).
+  per-motor factor) and action latency (``dr_action_delay``: the motors get the action of 0-k control steps ago,
+  per env, ``tasks/actuation.py``); both off by default, which keeps Playground parity and the random stream
+  unchanged (``go1_joystick_rough`` turns them on).
   The parameters live in numpy arrays (``self.dr``) and, flattened, in ``self.extrinsics``
   ``[M, privileged_dim]`` float32 for teacher/student methods (``self.extrinsics_layout`` names
   the columns: armature_scale 12, com_offset 3, default_pose_offset 12, floor_friction 1,
-  frictionloss_scale 12, mass_scale 13 (bodies 1..13), motor_strength 12, torso_mass_delta 1).
+  frictionloss_scale 12, mass_scale 13 (bodies 1..13), motor_strength 12, torso_mass_delta 1; action_delay 1
+  first when the latency is on).
   Deviation: Playground jitters ``model.qpos0``, which no Go1 dynamics reads (a no-op). Here the
   offset is also added to the motor targets (a joint-calibration error; observations and rewards
   keep the nominal default pose), so the parameter means something to a teacher/student method;
@@ -70,7 +73,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from tasks import base
+from tasks import actuation, base
 from tasks.floating_base import random_base_states
 from tasks.go1_math import (
     CRITIC_OBS_DIM,
@@ -135,6 +138,7 @@ class Go1JoystickConfig:
     dr_torso_mass_delta: float = 1.0
     dr_default_pose_offset: float = 0.05
     dr_motor_strength: tuple[float, float] = (1.0, 1.0)  # per-motor PD torque scale; (1, 1): off (parity)
+    dr_action_delay: tuple[int, int] = (0, 0)  # per-env action latency, control steps (tasks/actuation.py); off
     physics_engine: str = "rollout"  # "rollout" or "step" (tasks/physics.py)
     sensors_every_substep: bool = False  # False: skip sensors on inner substeps where faster
     integrator: str = "euler"  # DESIGN.md: Euler; Playground's newest XML uses "implicitfast"
@@ -224,7 +228,7 @@ class Go1JoystickFlat(base.Task):
         self.model = self.build_spec(c).compile()
         m = self.model
         M = self.num_envs
-        self._rng = np.random.Generator(np.random.Philox(self.seed))
+        self._rng = r = np.random.Generator(np.random.Philox(self.seed))
         home = m.key("home")
         self.init_qpos = np.array(home.qpos)
         self.default_pose = self.init_qpos[7:].copy()
@@ -241,6 +245,10 @@ class Go1JoystickFlat(base.Task):
         self._cmd_b = np.array(c.command_b)
         # Domain randomisation: per-env numpy parameters and per-env model copies.
         self.dr = self._sample_dr()
+        delays = actuation.sample_delays(r, c.dr_action_delay, M) if c.domain_randomization else None
+        if delays is not None:
+            self.dr["action_delay"] = delays[:, None].astype(np.float64)
+        self.delay = actuation.ActionDelay(np.zeros(M) if delays is None else delays, c.dr_action_delay[1], m.nu)
         self.extrinsics = self._extrinsics()
         models = self._apply_dr() if c.domain_randomization else None
         self.sim = BatchedSim(m, M, nsub, engine=c.physics_engine, models=models,
@@ -373,6 +381,7 @@ class Go1JoystickFlat(base.Task):
         qpos, qvel = self.base_states(idx)
         ctrl = self.default_pose + self._pose_offset(idx)
         self.sim.set_state(idx, qpos, qvel, ctrl=ctrl)
+        self.delay.reset(idx)
         self.steps_until_next_cmd[idx] = self._exp_steps(n)
         self.command[idx] = r.uniform(-self._cmd_a, self._cmd_a, size=(n, 3))
         self.last_act[idx] = 0.0
@@ -393,7 +402,7 @@ class Go1JoystickFlat(base.Task):
         M = self.num_envs
         a = np.clip(np.asarray(action, dtype=np.float64).reshape(M, self.model.nu), -1.0, 1.0)
         a = np.nan_to_num(a, nan=0.0)
-        unstable = self.sim.step(self._targets(a))
+        unstable = self.sim.step(self._targets(self.delay.apply(a)))
         return self._after_physics(a, unstable)
 
     def _after_physics(self, a: np.ndarray, unstable: np.ndarray) -> base.StepOut:

@@ -1,7 +1,7 @@
 """``go1_joystick_rough``: ``go1_joystick_flat`` on legged_gym-style rough terrain with its curricula.
 
 The flat task (``tasks/go1_joystick.py``: model, MDP, rewards, domain randomisation) with ``tasks/rough.py``'s
-``TerrainState`` plugged into its hooks:
+``RoughTask`` (a ``TerrainState`` plugged into its hooks):
 
 * Model: the flat model with the floor plane replaced by the terrain's heightfield geom (same name and contact
   parameters: foot-contact sensors and floor-friction randomisation read it unchanged).
@@ -11,6 +11,9 @@ The flat task (``tasks/go1_joystick.py``: model, MDP, rewards, domain randomisat
 * Observation: actor 48 (the flat task's; + the 187 scan values with ``perceptive``); critic 123 + 187: the
   flat critic observation, then the height scan (ground under 17 x 11 points around the base minus the base
   height, clipped to +-1 m).
+* Rewards: the feet's heights (``feet_clearance``, ``feet_height``) are heights above the ground under each foot.
+* Domain randomisation: the flat task's, plus motor strength (each motor's Kp and Kd x U(0.9, 1.1), per env)
+  and action latency (the motors get the action of 0 or 1 control steps ago, per env).
 * Truncation also when a robot comes within 1 m of the map's edge (``off_map``); termination as on flat ground.
 * Episode metrics ``terrain_level`` and ``terrain_level_<k>`` (the level histogram); evaluation:
   ``rough.TerrainEval`` (upper-half levels, per-type walking numbers).
@@ -32,8 +35,8 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from tasks import base, go1_math, rough
-from tasks.go1_joystick import Go1JoystickConfig, Go1JoystickFlat, build_spec
+from tasks import go1_math, rough
+from tasks.go1_joystick import Go1JoystickConfig, Go1JoystickFlat
 
 NAME = "go1_joystick_rough"
 
@@ -46,70 +49,27 @@ class Go1RoughConfig(Go1JoystickConfig, rough.RoughConfig):
     terrain_step_width: float = 0.25
     terrain_step_height: tuple[float, float] = (0.02, 0.14)
     terrain_obstacle_height: tuple[float, float] = (0.02, 0.14)
+    dr_motor_strength: tuple[float, float] = (0.9, 1.1)
+    dr_action_delay: tuple[int, int] = (0, 1)
 
 
 def default_config() -> Go1RoughConfig:
     return Go1RoughConfig()
 
 
-def feet_xy(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
-    """[4, 2] the foot spheres' xy relative to the base in pose ``qpos`` (heading 0), ``go1_math.FEET`` order."""
-    data = mujoco.MjData(model)
-    data.qpos[:] = qpos
-    mujoco.mj_kinematics(model, data)
-    return np.array([data.geom_xpos[model.geom(f).id, :2] - qpos[:2] for f in go1_math.FEET])
+class Go1JoystickRough(rough.RoughTask, Go1JoystickFlat):
+    NAME = NAME
 
+    def foot_geoms(self, model: mujoco.MjModel) -> list[int]:
+        return [model.geom(f).id for f in go1_math.FEET]
 
-class Go1JoystickRough(Go1JoystickFlat):
-    def __init__(self, config: Go1RoughConfig, num_envs: int, seed: int):
-        self.rough = rough.TerrainState(config, num_envs, seed, config.ctrl_dt, config.episode_length)
-        super().__init__(config, num_envs, seed)
-        self._stand = float(self.init_qpos[2])
-        self._feet = feet_xy(self.model, self.init_qpos)
-        self._cmd_final = self._cmd_a.copy()
-        self._cmd_a = self._cmd_final * self.rough.command_fraction
-        self._diverged = np.zeros(num_envs, dtype=bool)
-        scan = self.rough.scan_dim
-        self.spec = dataclasses.replace(
-            self.spec, name=NAME, obs_dim=self.spec.obs_dim + (scan if config.perceptive else 0),
-            critic_obs_dim=self.spec.critic_obs_dim + scan, episode_metrics=self.rough.metric_names)
+    def command_ranges(self, fraction: np.ndarray) -> None:
+        self._cmd_a = np.array(self.config.command_a) * fraction
 
-    def build_spec(self, config: Go1RoughConfig) -> mujoco.MjSpec:
-        spec = build_spec(config)
-        self.rough.add_to_spec(spec)
-        return spec
-
-    def base_states(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        qpos, qvel = super().base_states(idx)
-        return self.rough.place(qpos, idx, self._stand, self._feet), qvel
-
-    def extend_obs(self, obs: np.ndarray, critic_obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        scan = self.rough.scan(self.sim.qpos)
-        if self.config.perceptive:
-            obs = np.concatenate([obs, scan], axis=1)
-        return obs, np.concatenate([critic_obs, scan], axis=1)
-
-    def at_limit(self) -> np.ndarray:
-        return super().at_limit() | self.rough.off_map(self.sim.qpos)
-
-    def _after_physics(self, a: np.ndarray, unstable: np.ndarray) -> base.StepOut:
-        tracking = go1_math.reward_tracking_lin_vel(self.command, self._s("local_linvel"), self.config.tracking_sigma)
-        self.rough.record_step(self.command, tracking)
-        self._diverged = unstable | ~np.isfinite(self.sim.qpos).all(axis=1)
-        levels = self.rough.levels.copy()  # the ended episodes' levels, before the curriculum moves them
-        out = super()._after_physics(a, unstable)
-        return out._replace(extras=self.rough.episode_metrics(levels))
-
-    def _reset_and_observe(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        self.rough.episode_end(idx, self.sim.qpos[idx], self.steps[idx], self._diverged[idx])
-        self._cmd_a = self._cmd_final * self.rough.command_fraction
-        return super()._reset_and_observe(idx)
-
-    def eval_tracker(self, stepper=None) -> rough.TerrainEval:
-        """Freezes the task on upper-half levels (call before ``reset``) and returns its evaluation tracker."""
-        self.rough.freeze_for_evaluation()
-        self._cmd_a = self._cmd_final.copy()
-        return rough.TerrainEval(self, stepper)
+    def _sensors(self) -> dict[str, np.ndarray]:
+        s = super()._sensors()
+        s["feet_z"] = s["feet_z"] - self.feet_ground(go1_math.FEET)  # foot heights above the ground under them
+        return s
 
 
 def make(config: Go1RoughConfig, num_envs: int, seed: int) -> Go1JoystickRough:

@@ -27,7 +27,8 @@ their own. Storage grows with ``H``: obs and next_obs each hold ``H * d + p`` fl
 
 ``register_variant(name)`` adds the variant of any registered task that exposes ``extrinsics``
 (for ``history_extrinsics``); the built-in ones are ``cartpole_balance_hist``,
-``go1_joystick_flat_hist``, ``go1_joystick_rough_hist``, ``go2_joystick_flat_hist`` and ``allegro_rotate_hist``.
+``go1_joystick_flat_hist``, ``go1_joystick_rough_hist``, ``go2_joystick_flat_hist``, ``go2_joystick_rough_hist`` and
+``allegro_rotate_hist``.
 Other attributes (``command``, ``base_velocity()``, ``extrinsics``, ``dr``, ...) are forwarded to the wrapped task,
 and so are its per-episode metrics (``spec.episode_metrics``, ``StepOut.extras``).
 """

@@ -192,6 +192,8 @@ class Go1JoystickMjx:
             raise ValueError(f"ctrl_dt {c.ctrl_dt} must be a multiple of sim_dt {c.sim_dt}")
         if num_envs <= 0:
             raise ValueError(f"num_envs must be positive, got {num_envs}")
+        if c.dr_action_delay[1] > 0:
+            raise ValueError("dr_action_delay: the MJX variant has no action latency; set it to (0, 0)")
         self.config, self.num_envs, self.nsub, self.dt = c, int(num_envs), nsub, c.ctrl_dt
         self.reset_batch = int(reset_batch or min(num_envs, max(32, math.ceil(num_envs / 16))))
         self.model = gj.build_spec(c).compile()

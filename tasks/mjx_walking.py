@@ -193,6 +193,8 @@ class WalkingMjx:
             raise ValueError(f"{task_cls.__name__} has no MJX domain randomisation; known: {sorted(TASK_CLASSES)}")
         if num_envs <= 0:
             raise ValueError(f"num_envs must be positive, got {num_envs}")
+        if config.dr_action_delay[1] > 0 or tuple(config.dr_motor_strength) != (1.0, 1.0):
+            raise ValueError("dr_action_delay / dr_motor_strength: not in the MJX variant; set (0, 0) / (1.0, 1.0)")
         self.template = t = task_cls(config, 1, 0)  # constants, hooks and the compiled CPU model
         t.close()
         c = self.config = config

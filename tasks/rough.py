@@ -18,9 +18,10 @@ A task composes one ``TerrainState`` (``tasks/go1_rough.py``: ``go1_joystick_rou
 * metrics: ``episode_metrics`` (``METRICS``: the ended episodes' ``terrain_level`` and the level histogram
   ``terrain_level_<k>``, logged by the trainer as ``episode/...``); ``TerrainEval``, the evaluation tracker:
   env i on column ``i mod columns`` at a level of the upper half (``levels // 2`` and above), curricula frozen,
-  full command ranges; it reports the walking metric's numbers overall (the rough-terrain walking criterion is
-  ``metrics.WALKING`` on them) and per terrain type (``walking_<type>`` 1/0, ``tracking_error_<type>``,
-  ``fall_rate_<type>``).
+  full command ranges; it reports the walking metric's numbers overall, the lowest evaluated and the top level,
+  the rough-terrain walking criterion ``rough_terrain_walking`` (1/0: ``metrics.WALKING.met_on_rough``, the walking
+  criterion met on levels >= half the top level) and per terrain type (``walking_<type>`` 1/0,
+  ``tracking_error_<type>``, ``fall_rate_<type>``).
 
 Each worker keeps its own curricula (levels of its envs, command fraction); every worker builds the same terrain
 from ``terrain_seed``. The initial levels come from the task seed: U{0, ..., max_init_level}.
@@ -32,9 +33,10 @@ import dataclasses
 import math
 from typing import Any
 
+import mujoco
 import numpy as np
 
-from tasks import base, curriculum, terrain
+from tasks import base, curriculum, go1_math, terrain
 from unilab_jax.metrics import WALKING
 
 
@@ -191,6 +193,88 @@ class TerrainState:
         self.frozen = True
 
 
+def foot_points(model: Any, qpos: np.ndarray, geoms: Any) -> np.ndarray:
+    """[F, 2] the xy of geoms ``geoms`` (the feet's contact spheres) relative to the base in pose ``qpos``
+    (heading 0): the points whose ground sets the spawn height."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    return np.array([data.geom_xpos[g, :2] - qpos[:2] for g in geoms])
+
+
+class RoughTask:
+    """A flat walking task on the terrain: listed before the flat task class (``class Go1JoystickRough(RoughTask,
+    Go1JoystickFlat)``), it plugs a ``TerrainState`` into the flat task's hooks (``build_spec``, ``base_states``,
+    ``extend_obs``, ``at_limit``, ``_after_physics``, ``_reset_and_observe``).
+
+    The subclass sets ``NAME`` and provides ``foot_geoms(model)`` (the feet's contact spheres) and
+    ``command_ranges(fraction)`` (sets the command ranges: the config's times ``fraction [3]``); it reads heights
+    above the ground (``base_ground``, ``feet_ground``) where its rewards and terminations read heights, and
+    exposes ``command``, ``_s(sensor)`` and ``config.tracking_sigma`` (the tracking reward the command curriculum
+    sums)."""
+
+    NAME = ""
+
+    def __init__(self, config: Any, num_envs: int, seed: int):
+        self.rough = TerrainState(config, num_envs, seed, config.ctrl_dt, config.episode_length)
+        super().__init__(config, num_envs, seed)
+        self._stand = float(self.init_qpos[2])
+        self._feet = foot_points(self.model, self.init_qpos, self.foot_geoms(self.model))
+        self._diverged = np.zeros(num_envs, dtype=bool)
+        self.command_ranges(self.rough.command_fraction)
+        scan = self.rough.scan_dim
+        self.spec = dataclasses.replace(
+            self.spec, name=self.NAME, obs_dim=self.spec.obs_dim + (scan if config.perceptive else 0),
+            critic_obs_dim=self.spec.critic_obs_dim + scan, episode_metrics=self.rough.metric_names)
+
+    def build_spec(self, config: Any) -> Any:
+        spec = super().build_spec(config)
+        self.rough.add_to_spec(spec)
+        return spec
+
+    def base_states(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        qpos, qvel = super().base_states(idx)
+        return self.rough.place(qpos, idx, self._stand, self._feet), qvel
+
+    def extend_obs(self, obs: np.ndarray, critic_obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        obs, critic_obs = super().extend_obs(obs, critic_obs)
+        scan = self.rough.scan(self.sim.qpos)
+        if self.config.perceptive:
+            obs = np.concatenate([obs, scan], axis=1)
+        return obs, np.concatenate([critic_obs, scan], axis=1)
+
+    def at_limit(self) -> np.ndarray:
+        return super().at_limit() | self.rough.off_map(self.sim.qpos)
+
+    def base_ground(self) -> np.ndarray:
+        """[M] the ground under each base."""
+        return terrain.ground_height(self.rough.sampler, self.sim.qpos[:, 0], self.sim.qpos[:, 1])
+
+    def feet_ground(self, feet: Any) -> np.ndarray:
+        """[M, F] the ground under the ``{foot}_pos`` sensors of ``feet``."""
+        pos = np.stack([self._s(f"{f}_pos") for f in feet], axis=1)
+        return terrain.ground_height(self.rough.sampler, pos[..., 0], pos[..., 1])
+
+    def _after_physics(self, a: np.ndarray, unstable: np.ndarray) -> base.StepOut:
+        tracking = go1_math.reward_tracking_lin_vel(self.command, self._s("local_linvel"), self.config.tracking_sigma)
+        self.rough.record_step(self.command, tracking)
+        self._diverged = unstable | ~np.isfinite(self.sim.qpos).all(axis=1)
+        levels = self.rough.levels.copy()  # the ended episodes' levels, before the curriculum moves them
+        out = super()._after_physics(a, unstable)
+        return out._replace(extras=self.rough.episode_metrics(levels))
+
+    def _reset_and_observe(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.rough.episode_end(idx, self.sim.qpos[idx], self.steps[idx], self._diverged[idx])
+        self.command_ranges(self.rough.command_fraction)
+        return super()._reset_and_observe(idx)
+
+    def eval_tracker(self, stepper: Any = None) -> TerrainEval:
+        """Freezes the task on upper-half levels (call before ``reset``) and returns its evaluation tracker."""
+        self.rough.freeze_for_evaluation()
+        self.command_ranges(self.rough.command_fraction)
+        return TerrainEval(self, stepper)
+
+
 class TerrainEval:
     """The evaluation tracker of the rough tasks (``step`` / ``result`` / ``LOGGED`` like
     ``walking_metric.WalkingTracker``, over each env's first episode): the walking metric overall and per terrain
@@ -205,7 +289,8 @@ class TerrainEval:
         self._sums = np.zeros((m, 2))  # per env: tracking error, yaw-rate error
         self._count = np.zeros(m)
         self.types = tuple(dict.fromkeys(task.rough.terrain.columns))
-        self.LOGGED = ("tracking_error", "yaw_rate_error", "fall_rate", "terrain_level",
+        self.LOGGED = ("tracking_error", "yaw_rate_error", "fall_rate", "terrain_level", "terrain_level_min",
+                       "terrain_level_top", "rough_terrain_walking",
                        *(f"{k}_{t}" for t in self.types for k in ("walking", "tracking_error", "fall_rate")))
 
     @property
@@ -234,8 +319,10 @@ class TerrainEval:
     def result(self) -> dict[str, float]:
         rough = self._task.rough
         out = {**self._numbers(np.ones(self._task.num_envs, dtype=bool)),
-               "terrain_level": float(rough.levels.mean()), "evaluated_steps": int(self._count.sum()),
+               "terrain_level": float(rough.levels.mean()), "terrain_level_min": float(rough.levels.min()),
+               "terrain_level_top": float(rough.config.terrain_levels - 1), "evaluated_steps": int(self._count.sum()),
                "episodes": self._task.num_envs}
+        out["rough_terrain_walking"] = float(WALKING.met_on_rough(out))
         names = np.asarray(rough.terrain.columns)[rough.cols]
         for t in self.types:
             envs = names == t

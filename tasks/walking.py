@@ -29,7 +29,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from tasks import base, go1_math
+from tasks import actuation, base, go1_math
 from tasks.floating_base import gravity_from_quat, random_base_states
 from tasks.model_edits import feet_only_contacts, load_menagerie_spec, set_solver, strip_visuals
 from tasks.physics import BatchedSim
@@ -76,6 +76,11 @@ class WalkingConfig:
     push_interval_s: float = 15.0
     push_vel: tuple[float, float, float] = (1.0, 1.0, 0.5)
     domain_randomization: bool = True
+    # Actuation randomisation (off: (1, 1) and (0, 0); the rough tasks turn both on): each motor's PD torque (Kp
+    # and Kd) x U(dr_motor_strength), per env and motor; the motors get the action of U{dr_action_delay} control
+    # steps ago, per env (``tasks/actuation.py``).
+    dr_motor_strength: tuple[float, float] = (1.0, 1.0)
+    dr_action_delay: tuple[int, int] = (0, 0)
     physics_engine: str = "rollout"  # "rollout" or "step" (tasks/physics.py)
     sensors_every_substep: bool = False
 
@@ -320,7 +325,9 @@ class WalkingTask(base.Task):
     ``foot_geoms(model)`` (sphere geoms for the standing height) and ``sole_offsets(model) [F]`` (foot
     sensor height above the sole); ``policy_actuators(model)`` (indices the action drives; the rest hold
     their default); the ``REWARD_TERMS`` come from ``walking.reward_terms`` (weighted by ``pose_weight``);
-    ``critic_extra(s)``; ``sample_dr()`` and ``randomize_model(model, i)`` for domain randomisation.
+    ``critic_extra(s)``; ``sample_dr()`` and ``randomize_model(model, i)`` for domain randomisation (the
+    actuation's, ``dr_motor_strength`` / ``dr_action_delay``, is this class's). What a rough-terrain subclass
+    overrides (``tasks/rough.py``'s ``RoughTask``): ``base_states(idx)``, ``extend_obs``, ``at_limit``.
     """
 
     NAME: str = ""
@@ -363,8 +370,16 @@ class WalkingTask(base.Task):
         self.scales = base.reward_scales(c, self.REWARD_TERMS)
         self._cmd_low, self._cmd_high = np.array(c.command_low), np.array(c.command_high)
         self._push_every = round(c.push_interval_s / self.dt) if c.push_interval_s > 0 else 0
-        # Domain randomisation: per-env parameters (self.dr, flattened in self.extrinsics) and models.
+        # Domain randomisation: per-env parameters (self.dr, flattened in self.extrinsics) and models; the
+        # actuation's drawn after the task's own, and only when on (the flat tasks' draws stay as they were).
         self.dr = self.sample_dr()
+        lo, hi = c.dr_motor_strength
+        if c.domain_randomization and (lo, hi) != (1.0, 1.0):
+            self.dr["motor_strength"] = self._rng.uniform(lo, hi, size=(M, m.nu))
+        delays = actuation.sample_delays(self._rng, c.dr_action_delay, M) if c.domain_randomization else None
+        if delays is not None:
+            self.dr["action_delay"] = delays[:, None].astype(np.float64)
+        self.delay = actuation.ActionDelay(np.zeros(M) if delays is None else delays, c.dr_action_delay[1], n)
         self.extrinsics_layout = tuple((k, self.dr[k].shape[1]) for k in sorted(self.dr))
         self.extrinsics = np.concatenate([self.dr[k] for k in sorted(self.dr)], axis=1).astype(np.float32)
         models = None
@@ -373,6 +388,11 @@ class WalkingTask(base.Task):
             for i in range(M):
                 mi = copy.copy(m)
                 self.randomize_model(mi, i)
+                if "motor_strength" in self.dr:
+                    strength = self.dr["motor_strength"][i]
+                    mi.actuator_gainprm[:, 0] *= strength
+                    mi.actuator_biasprm[:, 1] *= strength
+                    mi.dof_damping[self._act_vadr] *= strength
                 models.append(mi)
         self.sim = BatchedSim(m, M, nsub, engine=c.physics_engine, models=models,
                               sensors_every_substep=c.sensors_every_substep)
@@ -456,18 +476,33 @@ class WalkingTask(base.Task):
         return self._rng.uniform(-1.0, 1.0, size=(self.num_envs, self._noise_scale.size)) * self._noise_scale
 
     def _observe(self, s: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        return observe(s, self.last_act, self._noise(), self.default_pose, self.phase_groups, self.critic_extra)
+        return self.extend_obs(*observe(s, self.last_act, self._noise(), self.default_pose, self.phase_groups,
+                                        self.critic_extra))
 
     def _ctrl(self, action: np.ndarray) -> np.ndarray:
         ctrl = np.tile(self.default_ctrl, (self.num_envs, 1))
         ctrl[:, self.policy_idx] += self.config.action_scale * action
         return ctrl
 
+    def base_states(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(qpos [n, nq], qvel [n, nv]) of new episodes of envs ``idx`` (the rough tasks move them onto cells)."""
+        c = self.config
+        return random_base_states(self.init_qpos, self.model.nv, idx.size, self._rng, c.reset_xy, c.reset_yaw,
+                                  c.reset_base_vel)
+
+    def extend_obs(self, obs: np.ndarray, critic_obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(obs, critic_obs) of the current state with what a subclass appends (the rough tasks' height scan)."""
+        return obs, critic_obs
+
+    def at_limit(self) -> np.ndarray:
+        """[M] bool: episodes truncated after this step (the time limit; the rough tasks add leaving the map)."""
+        return self.steps >= self.config.episode_length
+
     def _reset_envs(self, idx: np.ndarray) -> None:
-        c, r, n = self.config, self._rng, idx.size
-        qpos, qvel = random_base_states(self.init_qpos, self.model.nv, n, r, c.reset_xy, c.reset_yaw,
-                                        c.reset_base_vel)
+        r, n = self._rng, idx.size
+        qpos, qvel = self.base_states(idx)
         self.sim.set_state(idx, qpos, qvel, ctrl=np.tile(self.default_ctrl, (n, 1)))
+        self.delay.reset(idx)
         self.command[idx] = r.uniform(self._cmd_low, self._cmd_high, size=(n, 3))
         self.last_act[idx] = 0.0
         self.steps[idx] = 0
@@ -497,7 +532,7 @@ class WalkingTask(base.Task):
         a = np.nan_to_num(np.asarray(action, dtype=np.float64).reshape(self.num_envs, -1), nan=0.0)
         if c.action_clip > 0:
             a = np.clip(a, -c.action_clip, c.action_clip)
-        return self._after_physics(a, self.sim.step(self._ctrl(a)))
+        return self._after_physics(a, self.sim.step(self._ctrl(self.delay.apply(a))))
 
     def _after_physics(self, a: np.ndarray, unstable: np.ndarray) -> base.StepOut:
         """The rest of ``step`` once ``self.sim`` holds the post-physics state and sensors (the MJX parity
@@ -507,10 +542,11 @@ class WalkingTask(base.Task):
         next_obs, next_cobs, done, scaled, reward = step_math(
             self._sensors(), a, self._noise(), self.default_pose, self.phase_groups, c, self.scales, self.dt,
             self.reward_terms, self.critic_extra)
+        next_obs, next_cobs = self.extend_obs(next_obs, next_cobs)
         self.last_act = a  # the observation shows the action just applied
         self._push(done)
         out, n_unstable = base.finish_step(next_obs, next_cobs, reward, scaled, done, unstable,
-                                           self.steps >= c.episode_length, self._reset_and_observe)
+                                           self.at_limit(), self._reset_and_observe)
         self.unstable_count += n_unstable
         return out
 

@@ -212,3 +212,26 @@ def test_command_sizes_heterogeneous_runs_per_config():
     assert flags("g1_fastsac")[1].endswith("experiments/fastsac_g1.py") and "--utd_mode=free" in flags("go2_flashsac")
     mjx = flags("mjx_ppo", ["--max_seconds", "100"])
     assert "--max_seconds=100.0" in mjx and not any(f.startswith("--num_workers") for f in mjx)
+
+
+def test_rough_terrain_walking_criterion():
+    """Rough configurations: walking counts only on an evaluation of levels >= half the top level (TerrainEval's
+    terrain_level_min / terrain_level_top), falls <= 2%; the record holds the highest mean terrain level."""
+    good = {"eval/tracking_error": 0.2, "eval/yaw_rate_error": 0.2, "eval/fall_rate": 0.0}
+    assert ttt.is_walking({**good, "eval/terrain_level_min": 5.0, "eval/terrain_level_top": 9.0}, rough=True)
+    assert ttt.is_walking({**good, "eval/terrain_level_min": 4.5, "eval/terrain_level_top": 9.0}, rough=True)
+    assert not ttt.is_walking({**good, "eval/terrain_level_min": 4.0, "eval/terrain_level_top": 9.0}, rough=True)
+    assert not ttt.is_walking(good, rough=True) and ttt.is_walking(good)  # flat rows carry no terrain levels
+    assert not ttt.is_walking({**good, "eval/fall_rate": 0.03, "eval/terrain_level_min": 5.0,
+                               "eval/terrain_level_top": 9.0}, rough=True)
+    rows = _rows([(20.0, 1.0), (40.0, 1.0), (60.0, 1.0)], walking=[(0.2, 0.2, 0.0)] * 3)
+    for row, low in zip((r for r in rows if "eval/return" in r), (3.0, 5.0, 6.0)):
+        row.update({"eval/terrain_level_min": low, "eval/terrain_level_top": 9.0})
+    for r, level in zip(rows[:10], (0.5, 1.0, 2.5, 4.0, 3.5, 6.0, 6.5, 6.2, 5.0, 6.1)):
+        r["episode/terrain_level"] = level
+    s = ttt.summarize(rows, None, rough=True)
+    assert s["time_to_walking_s"] == 40.0 and ttt.summarize(rows, None)["time_to_walking_s"] == 20.0
+    assert (s["max_terrain_level"], s["max_terrain_level_wall_s"], s["max_terrain_level_step"]) == (6.5, 70.0, 70_000)
+    assert ttt.goals_reached(rows, None, rough=True) and not ttt.goals_reached(rows[:11], None, rough=True)
+    assert "--eval_envs=64" in ttt.command("g1_rough_fastsac", ttt.CONFIGS["g1_rough_fastsac"], 0, "/tmp/x",
+                                           ttt.parse_args(["--only", "g1_rough_fastsac"]))

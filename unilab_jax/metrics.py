@@ -38,6 +38,15 @@ class WalkingCriterion:
         tracking, yaw, falls = (float(v) for v in values)
         return tracking <= self.max_tracking_error and yaw <= self.max_yaw_rate_error and falls <= self.max_fall_rate
 
+    def met_on_rough(self, metric: dict[str, float], prefix: str = "") -> bool:
+        """The rough-terrain walking criterion: ``met`` by an evaluation that ran on terrain levels >= half the
+        maximum level only (``{prefix}terrain_level_min >= {prefix}terrain_level_top / 2``: the lowest evaluated
+        level and the grid's top level, as ``tasks/rough.py``'s ``TerrainEval`` reports them)."""
+        low, top = metric.get(prefix + "terrain_level_min"), metric.get(prefix + "terrain_level_top")
+        if low is None or top is None or not (math.isfinite(float(low)) and math.isfinite(float(top))):
+            return False
+        return float(low) >= float(top) / 2 and self.met(metric, prefix)
+
 
 WALKING = WalkingCriterion()
 

@@ -42,7 +42,7 @@ PPO_GO1 = {"gamma": 0.97,
 # fastsac_go1.py, fastsac_go1_rough.py
 FASTSAC_GO1 = {"v_min": -0.5, "v_max": 1.5}
 
-# fastsac_g1.py
+# fastsac_g1.py, fastsac_g1_rough.py
 FASTSAC_G1 = {**FASTSAC_GO1, "v_min": -2.0, "v_max": 3.0}
 
 # fastsac_g1_track.py
@@ -51,7 +51,7 @@ FASTSAC_G1_TRACK = {**FASTSAC_GO1, "v_min": -3.0, "v_max": 4.0}
 # flashsac_go1.py
 FLASHSAC_GO1 = {"gamma": 0.97, "init_alpha": 0.001, "normalize_rewards": False, "v_min": -0.5, "v_max": 1.5}
 
-# flashsac_go2.py
+# flashsac_go2.py, flashsac_go2_rough.py
 FLASHSAC_GO2 = {**FLASHSAC_GO1, "gamma": 0.99, "normalize_rewards": True, "v_min": -2.0, "v_max": 4.0}
 
 # him_ppo_go1.py
@@ -209,6 +209,9 @@ _RECIPES = {r.name: r for r in (
     Recipe("fastsac_g1", "run_experiment", dict(
         algo="fastsac", task="g1_walk_flat", recipe=FASTSAC_G1, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
+    Recipe("fastsac_g1_rough", "run_experiment", dict(
+        algo="fastsac", task="g1_walk_rough", recipe=FASTSAC_G1, default_total_steps=200_000_000,
+        sized_for=SizedFor("a 16-core H100 host", 16, 64))),
     Recipe("fastsac_g1_track", "run_experiment", dict(
         algo="fastsac", task="g1_track", recipe=FASTSAC_G1_TRACK, default_total_steps=100_000_000,
         sized_for=SizedFor("a 16-core H100 host", 15, 64))),
@@ -220,6 +223,9 @@ _RECIPES = {r.name: r for r in (
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
     Recipe("flashsac_go2", "run_experiment", dict(
         algo="flashsac", task="go2_joystick_flat", recipe=FLASHSAC_GO2, default_total_steps=100_000_000,
+        sized_for=SizedFor("a 16-core H100 host", 16, 64))),
+    Recipe("flashsac_go2_rough", "run_experiment", dict(
+        algo="flashsac", task="go2_joystick_rough", recipe=FLASHSAC_GO2, default_total_steps=200_000_000,
         sized_for=SizedFor("a 16-core H100 host", 16, 64))),
     Recipe("him_ppo_go1", "run_experiment", dict(
         algo="him_ppo", task="go1_joystick_flat_hist", recipe=HIM_PPO_GO1, task_recipe=HIM_PPO_GO1_TASK,

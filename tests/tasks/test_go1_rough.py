@@ -107,11 +107,16 @@ def test_evaluation_runs_on_hard_cells_and_reports_each_terrain_type():
         tracker.step(np.zeros((14, 12), np.float32))
     np.testing.assert_array_equal(task.rough.levels, levels)  # episodes ended: the curriculum stays frozen
     result = tracker.result()
-    assert set(tracker.LOGGED) <= set(result)
+    assert set(tracker.LOGGED) <= set(result) and len(set(tracker.LOGGED)) == len(tracker.LOGGED)  # no name twice
     for t in terrain.TYPES:
         assert result[f"walking_{t}"] in (0.0, 1.0) and np.isfinite(result[f"tracking_error_{t}"])
     # standing still does not walk: the per-type criterion fails where commands ask for motion
     assert not WALKING.met(result)
+    levels = (result["terrain_level_min"], result["terrain_level_top"])
+    assert levels == (5.0, 9.0) and result["rough_terrain_walking"] == 0.0
+    # the rough-terrain criterion: the walking numbers on an evaluation of levels >= half the top level
+    walks = {**result, "tracking_error": 0.1, "yaw_rate_error": 0.1, "fall_rate": 0.0}
+    assert WALKING.met_on_rough(walks) and not WALKING.met_on_rough({**walks, "terrain_level_min": 4.0})
     task.close()
 
 

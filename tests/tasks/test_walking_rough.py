@@ -1,0 +1,81 @@
+"""``go2_joystick_rough`` and ``g1_walk_rough`` on the real simulation: robots start on the terrain and stay on it,
+heights are read above the ground, the scan reaches the critic, the evaluation runs on hard cells."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import tasks
+from tasks import terrain
+
+CLEAN = {"noise_level": 0.0, "domain_randomization": False}
+
+
+def _deepest_contact(task) -> float:
+    deepest = 0.0
+    for i in range(task.num_envs):
+        _, data = task.render_scene(i)
+        if data.ncon:
+            deepest = min(deepest, float(data.contact.dist[: data.ncon].min()))
+    return deepest
+
+
+@pytest.mark.parametrize("name", ["go2_joystick_rough", "g1_walk_rough"])
+def test_walkers_start_on_the_surface_and_stay_on_it(name):
+    # every type at the top level, spawned up to 3 m from the cell centre (onto slopes, stair edges, obstacles)
+    task = tasks.make(name, 7, seed=0, overrides={**CLEAN, "reset_xy": 3.0, "max_init_level": 9})
+    task.rough.levels[:] = 9
+    _, cobs = task.reset()
+    assert _deepest_contact(task) > -0.02
+    assert (task.sim.qpos[:, 2] - task.base_ground() > task.init_qpos[2] - 0.02).all()
+    assert task.sim.qpos[:, 2].max() > 1.0  # some robots stand high on the grid: heights must be relative
+    np.testing.assert_allclose(cobs[:, -187:], task.rough.scan(task.sim.qpos), atol=1e-6)
+    rng = np.random.default_rng(0)
+    deepest = 0.0
+    for _ in range(60):
+        out = task.step(rng.uniform(-1, 1, (7, task.spec.action_dim)).astype(np.float32))
+        assert np.isfinite(out.critic_obs).all()
+        deepest = min(deepest, _deepest_contact(task))
+    assert deepest > -0.05, "a foot sank into the terrain"
+    assert task.unstable_count == 0
+    task.close()
+
+
+def test_heights_are_above_the_ground():
+    g1 = tasks.make("g1_walk_rough", 7, seed=0, overrides={**CLEAN, "reset_xy": 0.0})
+    assert g1.spec.obs_dim == 58 and g1.spec.critic_obs_dim == 66 + 187
+    _, cobs = g1.reset()
+    # G1's critic reads the pelvis height and both feet's heights (58 + 3: base_z, contacts, feet_h)
+    ground = terrain.ground_height(g1.rough.sampler, g1.sim.qpos[:, 0], g1.sim.qpos[:, 1])
+    np.testing.assert_allclose(cobs[:, 61], g1.sim.qpos[:, 2] - ground, atol=1e-5)
+    # standing feet on the flat platforms in the middle of the slope, stairs and obstacle cells: soles on the
+    # ground (5 mm spheres 0.5 mm into it), whatever the platform's height
+    flat = np.isin(np.asarray(g1.rough.terrain.columns)[g1.rough.cols], ["slope_up", "slope_down", "stairs_up",
+                                                                         "stairs_down", "obstacles"])
+    np.testing.assert_allclose(cobs[flat, 64:66], 0.0, atol=1e-3)
+    assert np.abs(ground[flat]).max() > 0.1
+    g1.close()
+    go2 = tasks.make("go2_joystick_rough", 7, seed=0, overrides={**CLEAN, "reset_xy": 0.0, "max_init_level": 9})
+    go2.rough.levels[:] = 9
+    go2.reset()
+    out = go2.step(np.zeros((7, 12), np.float32))
+    # (base height above the ground - 0.3)^2 x 20 x 0.02: small for a standing robot, ~0.3 if it read 1 m of cell
+    assert np.abs(out.reward_terms["base_height"]).max() < 2e-3
+    assert go2.sim.qpos[:, 2].max() > 1.0
+    go2.close()
+
+
+def test_walking_evaluation_reports_each_terrain_type():
+    task = tasks.make("go2_joystick_rough", 7, seed=0, overrides={**CLEAN, "episode_length": 10})
+    tracker = task.eval_tracker()
+    np.testing.assert_array_equal(task.rough.levels, [5] * 7)
+    np.testing.assert_allclose(task._cmd_high, task.config.command_high)
+    task.reset()
+    for _ in range(12):
+        out = tracker.step(np.zeros((7, 12), np.float32))
+    assert set(out.extras) == set(task.spec.episode_metrics)
+    result = tracker.result()
+    for t in terrain.TYPES:
+        assert result[f"walking_{t}"] in (0.0, 1.0)
+    task.close()
