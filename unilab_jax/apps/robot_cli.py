@@ -60,7 +60,8 @@ from unilab_jax.recipes import MANIPULATION_RECIPE  # noqa: F401 (the manipulati
 
 STATE_TASK = {"policy_state": True}
 # The policy sees no object or hole pose with images (policy_state off), and the critic none either (critic_state off):
-# a critic that knows them trains an encoder that need not locate them, and the actor reads that encoder's features.
+# a critic that knows them trains an encoder that need not locate them, and the actor reads that encoder's features
+# (on the reach test such a critic still learned, a bit slower: tests/robots/test_pixel_learning.py).
 IMAGE_TASK = {"cameras": ("front", "wrist"), "image_size": 32, "frame_stack": 2, "critic_state": False}
 # --asymmetric: the critic also reads the privileged state; the image-only actor gets an encoder of its own.
 ASYMMETRIC_TASK, ASYMMETRIC_RECIPE = {"critic_state": True}, {"actor_encoder": True}

@@ -19,7 +19,8 @@ image before auto-reset, like ``next_obs``). Then (Kostrikov et al., DrQ, arXiv:
   encoder}``, trained by the actor loss (its gradient through Q's action reaches it), and reads
   ``obs ++ features_actor(image)``; the soft target's next action reads ``next_obs ++ features_actor(next_image)``
   (gradient-stopped). The critic's encoder, trained by the critic, serves the critic only: a critic that knows the
-  object poses needs no image features that locate them, so sharing its features would leave the actor blind.
+  object poses needs no image features that locate them, so what its shared features tell the actor would be a
+  by-product of the critic's fit.
 * The normalizers keep running over ``obs`` / ``critic_obs`` only; the features (bounded by tanh) pass
   through them unscaled (``widen_stats``: mean 0, variance 1).
 * Published weights add ``encoder`` (the actor's with ``actor_encoder``, else the critic's) and
