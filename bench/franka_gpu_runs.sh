@@ -2,7 +2,10 @@
 # one GPU machine, each followed by 40-episode evaluations of its last three checkpoints; logs, compacted metrics
 # (bench/compact_metrics.py) and evaluations go to $OUT. On the GPU machine, after bench/device_setup.sh:
 #   JOB_TIMEOUT=480 bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
-# JOB = rlpd_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN; SPEED (default 10) sets --speed.
+# JOB = rlpd_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
+#       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN; SPEED (default 10) sets --speed.
+# The image jobs: front + wrist cameras at 64 px, 2 frames each, DrQ's encoder; the critic reads the same images and
+# proprioception (no object pose anywhere), or with _asym also the privileged state (the actor its own encoder).
 # Five runs at once share the GPU at ~75 env steps/s each, two at ~186 (H100 + 16 cores).
 R=$(printf 'sim:franka_emika_panda,%.0s' $(seq 12)); R=${R%,}
 F="--robots=$R --num_workers=8 --eval_envs=4 --eval_every=3000 --speed=${SPEED:-10} --total_steps=36000 --config utd=20 --config updates_per_call=64 --config publish_every=64"
@@ -19,6 +22,9 @@ job() {
     sac_pick) a="experiments/sac_franka_pick.py $F --nodense_reward $S --config actor_hidden=(128,128) --config critic_hidden=(128,128)";;
     sacflow_pick) a="experiments/sacflow_franka_pick.py $F --nodense_reward $S --config actor_hidden=(128,128) --config critic_hidden=(128,128)";;
     rlpd_peg_images) a="experiments/rlpd_franka_peg.py $F $P $I --config actor_every=2";;
+    rlpd_pick_images) a="experiments/rlpd_franka_pick.py $F $I --config actor_every=20";;
+    rlpd_peg_images_asym) a="experiments/rlpd_franka_peg.py $F $P $I --asymmetric --config actor_every=2";;
+    rlpd_pick_images_asym) a="experiments/rlpd_franka_pick.py $F $I --asymmetric --config actor_every=20";;
   esac
   local d=runs/$name
   timeout ${JOB_TIMEOUT:-540} python3 $a --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log

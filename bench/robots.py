@@ -1,11 +1,15 @@
-"""Robot-server numbers: step latency over the wire, render time per frame, scripted-expert success.
+"""Robot-server numbers: step latency over the wire, camera render time per frame, scripted-expert success.
 
     MENAGERIE_ROOT=../shared/robots python bench/robots.py [--episodes 50] [--out bench/results/robots.json]
+    python bench/robots.py --parts render --sizes 64 128 --out bench/results/h100/render_cameras.json   # GPU machine
 
 * ``step_ms``: wall time of ``RobotClient.step`` against a ``python -m unilab_jax.robots.serve`` process
   (Franka pick-and-place, no cameras) at speed 1 and 20 (control period 100 ms and 5 ms).
-* ``render_ms``: one ``mujoco.Renderer`` frame (front camera) of each arm at 64 and 96 px, in a fresh
-  interpreter with the first working ``MUJOCO_GL`` backend (skipped when there is none).
+* ``render``: in a fresh interpreter with ``MUJOCO_GL`` as set, else the first working backend: per (task, arm,
+  camera geometry, size) the milliseconds of one ``mujoco.Renderer`` frame of each camera (``front``, ``wrist``;
+  ``update_scene`` + ``render``, 20 frames after one warm-up) and of one control step with both cameras (physics,
+  IK and both frames: ``SimRobot.step`` unpaced), with the GL renderer's name (NVIDIA's EGL or Mesa's llvmpipe)
+  and the machine (CPU, cores, GPUs, load). Skipped when no backend renders.
 * ``experts``: success rate of each scripted expert over ``--episodes`` episodes, in-process, unpaced.
 """
 
@@ -14,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
 import subprocess
 import sys
 import time
@@ -25,25 +30,61 @@ from unilab_jax.robots.experts import PAIRS, evaluate_expert
 from unilab_jax.robots.gl import find_gl_backend
 
 HOLD = np.array([0.0, 0, 0, 0, 0, 0, -1.0], dtype=np.float32)
+PARTS = ("step", "render", "experts")
 
 _RENDER = """
 import json, sys, time
+import numpy as np
 from unilab_jax.robots.sim import SimConfig, SimRobot
-out = {}
-for arm in ("franka", "ur5e"):
-    for size in (64, 96):
-        robot = SimRobot(SimConfig(arm=arm, cameras=("front",), image_size=size, speed=float("inf"),
-                                   reset_seconds=0.0))
-        robot.reset(seed=0)
-        r = robot._renderer
-        r.update_scene(robot.data, camera="front"); r.render()
-        t = time.perf_counter()
-        for _ in range(20):
-            r.update_scene(robot.data, camera="front"); r.render()
-        out[f"{arm}_{size}px"] = (time.perf_counter() - t) / 20 * 1e3
-        robot.close()
-print(json.dumps(out))
+sizes, frames = json.loads(sys.argv[1]), 20
+rows, gl = [], None
+for task, arm in (("peg_insertion", "franka"), ("pick_place", "franka"), ("pick_place", "ur5e")):
+    for geometry in ("visual", "collision"):
+        for size in sizes:
+            robot = SimRobot(SimConfig(arm=arm, task=task, cameras=("front", "wrist"), image_size=size,
+                                       camera_geometry=geometry, speed=float("inf"), reset_seconds=0.0))
+            robot.reset(seed=0)
+            if gl is None:
+                try:
+                    from OpenGL import GL
+                    gl = GL.glGetString(GL.GL_RENDERER).decode()
+                except Exception as e:
+                    gl = f"unknown ({type(e).__name__})"
+            row = {"task": task, "arm": arm, "geometry": geometry, "size": size}
+            r = robot._renderer
+            for cam in ("front", "wrist"):
+                r.update_scene(robot.data, camera=cam, scene_option=robot._scene_option); r.render()
+                t = time.perf_counter()
+                for _ in range(frames):
+                    r.update_scene(robot.data, camera=cam, scene_option=robot._scene_option); r.render()
+                row[f"{cam}_ms"] = (time.perf_counter() - t) / frames * 1e3
+            hold = np.array([0, 0, 0, 0, 0, 0, 1 if task == "peg_insertion" else -1], np.float32)
+            t = time.perf_counter()
+            for _ in range(frames):
+                robot.step(hold)
+            row["step_with_cameras_ms"] = (time.perf_counter() - t) / frames * 1e3
+            rows.append(row)
+            robot.close()
+print(json.dumps({"gl_renderer": gl, "rows": rows}))
 """
+
+
+def machine() -> dict:
+    import mujoco
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
+    except OSError:
+        pass
+    try:
+        gpus = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=30).stdout.split("\n")
+    except (OSError, subprocess.TimeoutExpired):
+        gpus = []
+    return {"hostname": platform.node(), "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "cpu_model": cpu,
+            "cpu_count": os.cpu_count(), "gpus": [g for g in gpus if g], "loadavg": list(os.getloadavg()),
+            "python": platform.python_version(), "mujoco": mujoco.__version__}
 
 
 def step_latency(speed: float, steps: int) -> dict:
@@ -70,25 +111,38 @@ def step_latency(speed: float, steps: int) -> dict:
             "min": t.min(), "max": t.max(), "late_actions": health.late_actions, "overruns": health.overruns}
 
 
-def render_times() -> dict:
-    backend, reasons = find_gl_backend()
+def render_times(sizes: list[int]) -> dict:
+    backend = os.environ.get("MUJOCO_GL")
     if backend is None:
-        return {"skipped": reasons}
-    out = subprocess.run([sys.executable, "-c", _RENDER], env={**os.environ, "MUJOCO_GL": backend},
-                         capture_output=True, text=True, check=True, timeout=600)
+        backend, reasons = find_gl_backend()
+        if backend is None:
+            return {"skipped": reasons}
+    out = subprocess.run([sys.executable, "-c", _RENDER, json.dumps(sizes)], env={**os.environ, "MUJOCO_GL": backend},
+                         capture_output=True, text=True, timeout=1200)
+    if out.returncode != 0:
+        return {"backend": backend, "failed": out.stderr.strip().splitlines()[-3:]}
     return {"backend": backend, **json.loads(out.stdout.strip().splitlines()[-1])}
 
 
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--episodes", type=int, default=50)
+    p.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS))
+    p.add_argument("--sizes", type=int, nargs="+", default=[64, 128], help="camera image sizes (render)")
     p.add_argument("--out", default="bench/results/robots.json")
     args = p.parse_args()
-    result = {
-        "step_ms": [step_latency(1.0, 20), step_latency(20.0, 90)],
-        "render_ms": render_times(),
-        "experts": [evaluate_expert(task, arm, args.episodes) for task, arm in PAIRS],
-    }
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    result = {"machine": machine(), "commit": commit}
+    if "step" in args.parts:
+        result["step_ms"] = [step_latency(1.0, 20), step_latency(20.0, 90)]
+    if "render" in args.parts:
+        result["render"] = render_times(args.sizes)
+        for row in result["render"].get("rows", []):
+            print(f"{row['task']:>13} {row['arm']:>6} {row['geometry']:>9} {row['size']:>3} px: front "
+                  f"{row['front_ms']:6.2f} ms, wrist {row['wrist_ms']:6.2f} ms, step with both "
+                  f"{row['step_with_cameras_ms']:6.2f} ms", flush=True)
+    if "experts" in args.parts:
+        result["experts"] = [evaluate_expert(task, arm, args.episodes) for task, arm in PAIRS]
     print(json.dumps(result, indent=1, default=float))
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     with open(args.out, "w") as f:

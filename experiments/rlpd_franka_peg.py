@@ -7,9 +7,10 @@
 Without ``--demos`` the scripted expert records ``--num_demos`` (20) episodes on the run's robots first
 (``LOGDIR/demos``, with the run's images). Each minibatch is half demonstrations, half online data (symmetric
 sampling), the critics a LayerNorm ensemble of 10 with a subset-of-2 min target. The policy sees proprioception
-and the front camera's last 3 frames (``--observation=images``, the default: uint8 frame stacks rendered by the
-robots, a DrQ encoder trained by the critic; ``--observation=state``: the robot's privileged object state instead,
-the state-based comparison). Reward: 1 on
+and the front and wrist cameras' last 2 frames (``--observation=images``, the default: uint8 frame stacks rendered
+by the robots, a DrQ encoder trained by the critic, which reads the same and no object pose; ``--asymmetric``: the
+critic also reads the privileged state, the actor has its own encoder; ``--observation=state``: the robot's
+privileged object state instead, the state-based comparison). Reward: 1 on
 success only (the episode then ends), as a physical robot's success detector gives it (``--dense_reward``
 adds the shaped term). Flags and recipe: ``unilab_jax.apps.robot_cli``.
 """

@@ -225,6 +225,7 @@ _REGISTRY: dict[str, _Entry] = {
     "robot_pick_place": _Entry(_ByName("tasks.robot:make", "pick_place"), _ByName("tasks.robot:default_config")),
     "robot_peg_insertion": _Entry(_ByName("tasks.robot:make", "peg_insertion"),
                                   _ByName("tasks.robot:default_config")),
+    "robot_reach": _Entry(_ByName("tasks.robot:make", "reach"), _ByName("tasks.robot:default_config")),
     **{f"{name}_hist": _history(name)
        for name in ("cartpole_balance", "go1_joystick_flat", "go1_joystick_rough", "go2_joystick_flat",
                     "go2_joystick_rough", "allegro_rotate")},

@@ -9,7 +9,9 @@ are in-process simulated robots (``arm``, unpaced, rendering ``cameras`` if any)
 Observation (state-based): the robot's ``proprio`` [13], (with ``policy_state``) its ``privileged`` state,
 a one-hot of its kind (``KINDS``) and a one-hot of its place in the inventory (the robot's identity; one
 slot without an inventory; none with ``robot_identity`` off). Critic observation:
-the observation, the robot's privileged state and the episode time ``t / episode_length``.
+the observation, the robot's privileged state (without ``critic_state``: not) and the episode time
+``t / episode_length``. ``observation(i)`` is env ``i``'s last robot observation as the robot sent it
+(privileged state included: what the scripted expert reads).
 
 Image observation (``cameras``, e.g. ``("front",)``; ``image_size``; ``frame_stack``): beside the observation
 above (the proprioception), the policy sees the cameras' last ``frame_stack`` frames as one uint8 image
@@ -63,6 +65,7 @@ REWARD_TERMS = ("task",)
 SOURCE_POLICY, SOURCE_OPERATOR = 0, 1
 EPISODE_METRICS = ("intervention_rate", "interventions")
 CAMERAS = ("front", "wrist")  # what the simulated robots render (unilab_jax.robots.sim.CAMERAS)
+CAMERA_GEOMETRY = ("visual", "collision")  # unilab_jax.robots.sim.CAMERA_GEOMETRY
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,9 +84,14 @@ class RobotTaskConfig:
     # The policy also sees the robot's privileged state (object poses): a state-based stand-in for cameras,
     # simulated robots only (a physical robot sends no privileged state).
     policy_state: bool = False
+    # The critic observation holds the privileged state too (an asymmetric actor-critic). Off: the critic reads
+    # what the policy reads (with cameras: proprioception and images, as DrQ and SERL's critics do).
+    critic_state: bool = True
     cameras: tuple[str, ...] = ()  # image observation from these cameras (see the module docstring); (): none
     image_size: int = 64  # pixels per side of each camera's frame (robot servers must render this size)
     frame_stack: int = 1  # frames per camera in the image observation (the last ones, oldest first)
+    # In-process robots only: what their cameras draw of the arm (visual meshes, or the ~10x cheaper collision shapes).
+    camera_geometry: str = "visual"
     timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
     lease_s: float = 5.0
     connect_timeout_s: float = 60.0  # wait for free robots when the task is built
@@ -129,6 +137,8 @@ class RobotTaskConfig:
             raise ValueError(f"cameras must be distinct names of {CAMERAS}, got {self.cameras}")
         if not 16 <= self.image_size <= 256:
             raise ValueError(f"image_size must be in [16, 256], got {self.image_size}")
+        if self.camera_geometry not in CAMERA_GEOMETRY:
+            raise ValueError(f"camera_geometry must be one of {CAMERA_GEOMETRY}, got {self.camera_geometry!r}")
         if self.frame_stack < 1:
             raise ValueError(f"frame_stack must be >= 1, got {self.frame_stack}")
         self.operator_config()  # checks the operator fields
@@ -178,8 +188,9 @@ class RobotTask(base.Task):
         obs_dim = spec.proprio_dim + len(KINDS) + self.n_ids + (spec.privileged_dim if config.policy_state else 0)
         image_shape = config.image_shape()
         images = tuple((name, image_shape, "uint8") for name in IMAGE_FIELDS) if config.cameras else ()
-        self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim,
-                                  critic_obs_dim=obs_dim + spec.privileged_dim + 1, action_dim=spec.action_dim,
+        critic_obs_dim = obs_dim + (spec.privileged_dim if config.critic_state else 0) + 1
+        self.spec = base.TaskSpec(name=f"robot_{task}", obs_dim=obs_dim, critic_obs_dim=critic_obs_dim,
+                                  action_dim=spec.action_dim,
                                   episode_length=self.length, ctrl_dt=1.0 / spec.control_hz, reward_terms=REWARD_TERMS,
                                   transition_fields=(("source", (), "uint8"), *images),
                                   episode_metrics=EPISODE_METRICS, success_on_termination=True, image_shape=image_shape)
@@ -198,7 +209,8 @@ class RobotTask(base.Task):
 
         for i in range(self.num_envs):
             robot = SimRobot(SimConfig(arm=self.config.arm, task=self.task_name, cameras=self.config.cameras,
-                                       image_size=self.config.image_size, speed=float("inf"), reset_seconds=0.0,
+                                       image_size=self.config.image_size, camera_geometry=self.config.camera_geometry,
+                                       speed=float("inf"), reset_seconds=0.0,
                                        dense_reward=self.config.dense_reward, seed=self.seed * 1000 + i))
             robot.connect()
             self.robots.append(robot)
@@ -284,7 +296,12 @@ class RobotTask(base.Task):
         state = [robot_obs["privileged"].astype(np.float32)] if self.config.policy_state else []
         obs = np.concatenate([robot_obs["proprio"].astype(np.float32), *state, kind, ident])
         t = np.array([self.steps[i] / self.length], np.float32)
-        return obs, np.concatenate([obs, robot_obs["privileged"].astype(np.float32), t])
+        critic = [robot_obs["privileged"].astype(np.float32)] if self.config.critic_state else []
+        return obs, np.concatenate([obs, *critic, t])
+
+    def observation(self, i: int) -> dict[str, np.ndarray]:
+        """Env ``i``'s last robot observation (``proprio``, ``privileged``, camera frames), as the robot sent it."""
+        return self._last[i]
 
     def _observe_all(self) -> tuple[np.ndarray, np.ndarray]:
         pairs = [self._obs(i, self._last[i]) for i in range(self.num_envs)]

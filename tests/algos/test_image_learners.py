@@ -118,6 +118,48 @@ def test_critic_gradient_trains_the_encoder_and_the_actor_gradient_does_not():
     assert norm(q_grads["net"]) > 1e-4  # (only because the encoder's features are stopped)
 
 
+def test_actor_encoder_is_the_actors_own():
+    """``actor_encoder`` (the asymmetric actor-critic): the actor loss trains the actor's encoder and never the
+    critic's, the critic loss never moves the actor, and the published policy reads the actor's encoder only (a
+    change of the critic's leaves its actions as they were)."""
+    config = dataclasses.replace(CONFIG, actor_encoder=True)
+    learner = offpolicy_jax.SACFamilyLearner(sac, config, SPEC)
+    params = nets.convert(learner.init_params(np.array([2, 3])), offpolicy_jax.XP)
+    assert set(params["actor"]) == {"net", "encoder"} and set(params["critic"]) == {"net", "encoder"}
+    rng = np.random.default_rng(2)
+    n = 16
+    mb = {k: jnp.asarray(v[0, :n]) for k, v in _batch(rng).items()}
+    mb = {**mb, "terminated": jnp.zeros(n), "truncated": jnp.zeros(n)}
+    stats = normalizer.stats_init(OBS, offpolicy_jax.XP)
+    norms = Norms(stats, stats, jnp.ones(()))
+    eps = jnp.asarray(rng.normal(size=(n, A)).astype(np.float32))
+    log_alpha = jnp.asarray(np.log(0.2), jnp.float32)
+    total = lambda tree: float(sum(jnp.sum(jnp.abs(x)) for x in jax.tree_util.tree_leaves(tree)))  # noqa: E731
+    a_loss = lambda a, c: image_obs.actor_loss(sac)(a, c, log_alpha, norms, mb, eps, config)[0]  # noqa: E731
+    a_grads, q_grads = jax.jit(jax.grad(a_loss, argnums=(0, 1)))(params["actor"], params["critic"])
+    assert total(a_grads["encoder"]) > 1e-4 and total(a_grads["net"]) > 1e-4
+    assert total(q_grads["encoder"]) == 0.0
+    c_loss = lambda c, a: image_obs.critic_loss(sac)(c, params["target_critic"], a, log_alpha, norms, mb, eps,  # noqa: E731
+                                                     config)[0]
+    c_grads, from_actor = jax.jit(jax.grad(c_loss, argnums=(0, 1)))(params["critic"], params["actor"])
+    assert total(c_grads["encoder"]) > 1e-3 and total(from_actor) == 0.0
+
+    np_params = nets.to_numpy(params)
+    weights = image_obs.add_encoder(sac.policy_weights(np_params["actor"], nets.to_numpy(stats)), np_params["actor"],
+                                    np_params["critic"], config)
+    assert weights["encoder"] is np_params["actor"]["encoder"] and weights["actor"] is np_params["actor"]["net"]
+    img, _ = _images(rng, 8)
+    obs, noise = rng.normal(size=(8, OBS)).astype(np.float32), np.zeros((8, A), np.float32)
+    act = lambda w: sac.act(w, obs, noise, True, image=img)[0]  # noqa: E731
+    scaled = lambda enc: {**enc, "linear": {**enc["linear"], "w": enc["linear"]["w"] * 3.0}}  # noqa: E731
+    other_critic = image_obs.add_encoder(weights, np_params["actor"],
+                                         {**np_params["critic"], "encoder": scaled(np_params["critic"]["encoder"])},
+                                         config)
+    np.testing.assert_array_equal(act(other_critic), act(weights))
+    other_actor = {**weights, "encoder": scaled(weights["encoder"])}
+    assert not np.allclose(act(other_actor), act(weights))
+
+
 def test_one_compile_target_encoder_weights_and_numpy_act():
     learner = _learner()
     rng = np.random.default_rng(1)
@@ -162,7 +204,8 @@ def test_sacflow_act_reads_images():
     learner = offpolicy_jax.SACFamilyLearner(sacflow, config, SPEC)
     params = nets.to_numpy(learner.init_params(np.array([3, 4])))
     stats = normalizer.RunningStats(np.full(OBS, 0.5, np.float32), np.full(OBS, 2.0, np.float32), np.float32(10.0))
-    weights = image_obs.add_encoder(sac.policy_weights(params["actor"], stats), params["critic"], config)
+    weights = image_obs.add_encoder(sac.policy_weights(params["actor"], stats), params["actor"], params["critic"],
+                                  config)
     rng = np.random.default_rng(3)
     img, _ = _images(rng, 6)
     obs, noise = rng.normal(size=(6, OBS)).astype(np.float32), rng.normal(size=(6, sacflow.noise_dim(A)))

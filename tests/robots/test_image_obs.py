@@ -205,5 +205,39 @@ def test_experiment_refuses_a_server_without_the_cameras(tmp_path, serve):
                           f"--robots={server.address}", f"--logdir={tmp_path / 'run'}"], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2, out.stderr[-2000:]
-    assert "serve it with --cameras=front --image_size=32" in out.stderr and "Traceback" not in out.stderr
+    assert "serve it with --cameras=front,wrist --image_size=32" in out.stderr and "Traceback" not in out.stderr
     assert not (tmp_path / "run" / "demos").exists()
+
+
+@pytest.mark.parametrize("critic_state", [False, True])
+def test_the_policy_observation_holds_no_privileged_state(critic_state):
+    """The image runs' task options (``robot_cli.IMAGE_TASK`` less the cameras: in-process robots render in this
+    process only with a GL backend chosen before mujoco's import): two robots of one seed, the hole of one moved by
+    5 cm, the same actions. The privileged state differs, the policy's observation (proprioception and kind) stays
+    byte for byte the same, so every policy acts the same on it; the critic's differs only with ``critic_state``
+    (the asymmetric actor-critic of ``--asymmetric``)."""
+    import mujoco
+
+    from unilab_jax.apps.robot_cli import IMAGE_TASK, ROBOT_TASK
+
+    overrides = {**ROBOT_TASK, **IMAGE_TASK, "cameras": (), "critic_state": critic_state, "episode_length": 5}
+    pair = [tasks.make("robot_peg_insertion", 1, 7, overrides) for _ in range(2)]
+    try:
+        first = [t.reset() for t in pair]
+        robot = pair[1].robots[0]
+        robot.data.mocap_pos[robot.model.body("block").mocapid[0], :2] += 0.05
+        mujoco.mj_forward(robot.model, robot.data)
+        action = np.array([[0.3, -0.2, 0.1, 0, 0, 0, 1]], np.float32)
+        outs = [t.step(action) for t in pair]
+        hole = [t.observation(0)["privileged"][11:14] for t in pair]
+        np.testing.assert_allclose(hole[1][:2] - hole[0][:2], 0.05, atol=1e-6)
+        assert pair[0].spec.obs_dim == 13 + 2  # proprioception and the kind one-hot, nothing else
+        assert first[0][0].tobytes() == first[1][0].tobytes()
+        assert outs[0].next_obs.tobytes() == outs[1].next_obs.tobytes()
+        assert outs[0].obs.tobytes() == outs[1].obs.tobytes()
+        same_critic = outs[0].next_critic_obs.tobytes() == outs[1].next_critic_obs.tobytes()
+        assert same_critic != critic_state
+        assert pair[0].spec.critic_obs_dim == 15 + critic_state * pair[0].robot_spec.privileged_dim + 1
+    finally:
+        for t in pair:
+            t.close()

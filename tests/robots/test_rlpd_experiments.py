@@ -21,7 +21,7 @@ def _script(name: str, *args: str, timeout: float) -> subprocess.CompletedProces
 
 
 def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
-    """The plain command: images (the front camera's frames rendered by the sim: server) + proprioception, 20
+    """The plain command: images (the front and wrist cameras' frames rendered by the sim: server) + proprioception, 20
     demonstrations recorded with images, RLPD with the image encoder. 500 env steps (learning starts at 300:
     ~100 gradient steps at the image recipe's utd 0.5, ~25 learner calls, each logging the prior rows and the
     ensemble's spread) exercise what 2000 did, and 4 gradient steps per call, not the recipe's 16: on the CPU
@@ -32,10 +32,12 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
                   f"--logdir={logdir}", timeout=500)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "demonstrations: 20 episodes (" in out.stdout
-    assert "image observation 32x32x9 uint8 (front x 3 frames)" in out.stdout
+    assert "image observation 32x32x12 uint8 (front,wrist x 2 frames)" in out.stdout
     with ReplayStore(str(logdir / "demos")) as store:
         rows = store.read(store.first_row, store.committed)
-    assert rows["image"].shape[1:] == rows["next_image"].shape[1:] == (32, 32, 9)
+    assert rows["image"].shape[1:] == rows["next_image"].shape[1:] == (32, 32, 12)
+    # no privileged state in the critic's observation either (critic_state off): proprio 13 + kind 2 + time 1
+    assert rows["obs"].shape[1:] == (15,) and rows["critic_obs"].shape[1:] == (16,)
     assert rows["image"].dtype == np.uint8 and rows["image"].std() > 5  # rendered scenes
     assert len(set(rows["episode"].tolist())) == 20
     for e in range(20):  # the label: the episode ended by success (termination), not by its time limit
@@ -69,6 +71,9 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     ("rlpd_franka_peg.py", ["--config", "prior_fraction=1.0"], "prior_fraction must be in [0, 1)"),
     ("rlpd_franka_peg.py", ["--task_config=image_size=16", "--config", "encoder_channels=(8, 8, 8, 8)", "--config",
                             "encoder_strides=(2, 2, 2, 2)"], "is too small for 4 3x3 convolutions"),
+    # a critic with the privileged state beside an image-only actor only as the stated asymmetric actor-critic
+    ("rlpd_franka_peg.py", ["--task_config=critic_state=true"], "use --asymmetric"),
+    ("rlpd_franka_peg.py", ["--asymmetric", "--observation=state"], "--asymmetric: with --observation=images only"),
 ])
 def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message):
     out = _script(script, *args, f"--logdir={tmp_path / 'x'}", timeout=120)

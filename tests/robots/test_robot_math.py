@@ -15,10 +15,12 @@ from unilab_jax.robots.manipulation import (
     BinGeometry,
     PegGeometry,
     PegInsertion,
+    Reach,
     in_bin,
     peg_potential,
     peg_success,
     pick_place_potential,
+    reach_potential,
     shaped_reward,
 )
 from unilab_jax.robots.serve import parse_faults
@@ -109,6 +111,16 @@ def test_peg_success_and_reward():
     assert over - jammed == pytest.approx((math.tanh(10 * math.hypot(0.005, 0.02)) - math.tanh(0.2)
                                            + math.tanh(0.5)) / 2)
     assert over - jammed > 0.2
+
+
+def test_reach_success_and_potential_read_the_plane_only():
+    task = Reach("franka", dense_reward=True)
+    target = np.array([0.45, 0.05, 0.0])
+    state = np.concatenate([target, np.zeros(3)])
+    assert task.success(state, np.array([0.46, 0.06, 0.3]))  # 1.4 cm away in the plane, at any height
+    assert not task.success(state, np.array([0.471, 0.05, 0.0]))  # 2.1 cm: outside the 2 cm radius
+    assert reach_potential(np.array([0.45, 0.05, 0.25]), target) == pytest.approx(1.0)
+    assert task.potential(state, np.array([0.45, 0.15, 0.1])) == pytest.approx(1.0 - math.tanh(1.0))
 
 
 def test_shaped_reward_pays_progress_and_success():

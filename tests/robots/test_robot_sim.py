@@ -134,3 +134,23 @@ def test_observation_layout_and_noise():
     exact = obs["privileged"][:3]
     assert 0 < np.abs(obs["proprio"][:3] - exact).max() < 0.05
     assert set(obs) == {"proprio", "privileged"}
+
+
+def test_collision_camera_geometry_hides_only_the_visual_meshes():
+    """``camera_geometry="collision"``: the arm's visual meshes (mesh geoms that collide with nothing) go to the
+    group the cameras leave out; every other geom (collision shapes, floor, task objects) stays drawn."""
+    import mujoco
+
+    from unilab_jax.robots.sim import HIDDEN_GROUP
+
+    robot = SimRobot(SimConfig(task="reach", cameras=(), camera_geometry="collision", speed=math.inf))
+    m = robot.model
+    hidden = m.geom_group == HIDDEN_GROUP
+    visual = (m.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & (m.geom_contype == 0) & (m.geom_conaffinity == 0)
+    assert hidden.sum() > 10 and np.array_equal(hidden, visual) and np.all(m.geom_group[~hidden] == 0)
+    assert robot._scene_option.geomgroup[HIDDEN_GROUP] == 0 and robot._scene_option.geomgroup[0] == 1
+    assert not hidden[m.geom("target").id] and not hidden[m.geom("floor").id]
+    plain = SimRobot(SimConfig(task="reach", cameras=(), speed=math.inf))
+    assert not np.any(plain.model.geom_group == HIDDEN_GROUP)
+    with pytest.raises(ValueError, match="camera_geometry"):
+        SimConfig(camera_geometry="wireframe")

@@ -26,6 +26,7 @@ BUILTIN = [n for n in tasks.names() if tasks.base._REGISTRY[n].factory.__module_
 # need: 40-60 steps): a shorter limit lets random actions end episodes within the STEPS of this test.
 # The Allegro object rests on the palm, so random actions rarely drop it: its episodes end at a short limit.
 ROLLOUT_OVERRIDES = {"robot_pick_place": {"episode_length": 40}, "robot_peg_insertion": {"episode_length": 40},
+                     "robot_reach": {"episode_length": 40},
                      "allegro_rotate": {"episode_length": 40}, "allegro_rotate_hist": {"episode_length": 40}}
 
 

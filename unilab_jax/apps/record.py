@@ -2,7 +2,7 @@
 
     python -m unilab_jax.robots.record --robots=sim:franka_emika_panda --task=robot_peg_insertion \\
         --episodes=20 --out=demos/peg [--speed=20] [--device=expert|keyboard|spacemouse]
-        [--cameras=front --image_size=64 --frame_stack=3]
+        [--cameras=front,wrist --image_size=64 --frame_stack=2 --no_critic_state]
 
 ``--robots``: an inventory (``robots.inventory``: ``sim:NAME`` servers are started here at ``--speed``,
 ``tcp://HOST:PORT`` ones are already running). The robots run the task ``robots.robot_*`` as training
@@ -36,7 +36,7 @@ import numpy as np
 from unilab_jax.fields import IMAGE_FIELDS, prior_fields
 from unilab_jax.robots import inventory, teleop
 
-TASKS = ("robot_pick_place", "robot_peg_insertion")
+TASKS = ("robot_pick_place", "robot_peg_insertion", "robot_reach")
 LABEL_FIELDS = {"episode": ((), np.dtype(np.int32)), "success": ((), np.dtype(bool))}
 
 
@@ -47,12 +47,6 @@ def demo_layout(spec: Any) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
 
     layout = transition_layout(spec)
     return {**{k: layout[k] for k in prior_fields(spec)}, **LABEL_FIELDS}
-
-
-def _privileged(task: Any, critic_obs: np.ndarray) -> dict[str, np.ndarray]:
-    """The robot observation a device reads, rebuilt from the task's critic observation."""
-    o, p = task.spec.obs_dim, task.robot_spec.privileged_dim
-    return {"privileged": critic_obs[o:o + p], "proprio": critic_obs[:task.robot_spec.proprio_dim]}
 
 
 def record(addresses: list[str], task_name: str, episodes: int, out: str, device: str = "expert",
@@ -101,7 +95,7 @@ def _run(task: Any, devices: list, store: Any, episodes: int) -> dict[str, Any]:
     rows: list[list[dict[str, np.ndarray]]] = [[] for _ in range(n)]
     done_episodes = successes = steps = 0
     while done_episodes < episodes:
-        action = np.stack([devices[i](_privileged(task, critic[i])) for i in range(n)]).astype(np.float32)
+        action = np.stack([devices[i](task.observation(i)) for i in range(n)]).astype(np.float32)
         out = task.step(action)
         executed = out.extras.get("action", action) if out.extras else action  # e.g. with lock_rotation
         steps += n
@@ -147,6 +141,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    "empty: none): record for runs with the same --task_config=cameras")
     p.add_argument("--image_size", type=int, default=64, help="pixels per side of each camera frame (with --cameras)")
     p.add_argument("--frame_stack", type=int, default=1, help="frames per camera in the image (with --cameras)")
+    p.add_argument("--no_critic_state", action="store_true", help="no privileged state in the critic observation: "
+                   "record for runs with --task_config=critic_state=false (the image runs without --asymmetric)")
     p.add_argument("--robot_identity", action="store_true", help="the inventory-slot one-hot in the observation: "
                    "record for runs with --task_config=robot_identity=true (the robot experiments leave it out)")
     return p.parse_args(argv)
@@ -158,7 +154,8 @@ def task_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
     cameras = tuple(c.strip() for c in args.cameras.split(",") if c.strip())
     overrides = {"policy_state": args.policy_state, "cameras": cameras, "image_size": args.image_size,
-                 "frame_stack": args.frame_stack, "robot_identity": args.robot_identity}
+                 "frame_stack": args.frame_stack, "robot_identity": args.robot_identity,
+                 "critic_state": not args.no_critic_state}
     RobotTaskConfig(**overrides)
     return overrides
 

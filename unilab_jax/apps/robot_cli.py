@@ -13,14 +13,18 @@ Flags beside the shared ones (``unilab_jax.apps.cli``):
   public key (``server_key``) and this client's key pair (``[client] key``), which the workers' clients use
   (docs/ROBOTS.md, "Deploying a robot server"). Each server is asked for its spec and health first (and must
   render the task's cameras at its ``image_size``).
-* ``--observation``: what the policy sees besides proprioception: ``images`` (``IMAGE_TASK``: the front camera's
-  last 3 frames at 32 x 32, uint8, and ``IMAGE_RECIPE``'s small encoder: both sized for a 2-core CPU;
-  ``--task_config=cameras=...,image_size=...,frame_stack=...`` and ``--config encoder_channels=...`` change them),
+* ``--observation``: what the policy sees besides proprioception: ``images`` (``IMAGE_TASK``: the front and wrist
+  cameras' last 2 frames at 32 x 32, uint8, and ``IMAGE_RECIPE``'s small encoder: both sized for a 2-core CPU;
+  ``--task_config=cameras=...,image_size=...,frame_stack=...`` and ``--config encoder_channels=...`` change them;
+  the critic reads the same images and proprioception, no privileged state: ``critic_state`` off; with
+  ``--asymmetric`` the critic also reads the privileged state and the actor has an encoder of its own, trained by
+  the actor loss: ``actor_encoder``; a critic with privileged state and a shared encoder is refused),
   ``state`` (``STATE_TASK``: the robot's privileged object state, the state-based comparison) or ``proprio``
   (nothing more); default: the experiment's. Images need an algorithm that learns from them (sac, rlpd, sacflow:
   ``algos/offpolicy/image_obs.py``; checked with the image size before any robot starts). With
   images the replay ring holds at most ``--total_steps`` transitions unless ``--config replay_capacity=N`` is given
-  (a 64 px transition with 3 frames holds 72 KiB of images; the run prints the ring's size in shared memory).
+  (a 64 px transition with two cameras and 2 frames holds 96 KiB of images; the run prints the ring's size in shared
+  memory).
 * Assignment: one robot per rollout worker (``--num_workers`` defaults to, and ``auto`` is, the number of robots,
   less the ``--eval_envs`` kept for evaluation; ``--envs_per_worker`` to 1); each worker claims the first free robot.
   Periodic evaluation (``--eval_every``) needs robots the workers leave free: ``num_workers x envs_per_worker
@@ -57,7 +61,12 @@ from unilab_jax.apps.cli import FLAGS, PROCESS_START, FlagError, build_run, help
 from unilab_jax.recipes import MANIPULATION_RECIPE  # noqa: F401 (the manipulation scripts' recipe, kept here too)
 
 STATE_TASK = {"policy_state": True}
-IMAGE_TASK = {"cameras": ("front",), "image_size": 32, "frame_stack": 3}
+# The policy sees no object or hole pose with images (policy_state off), and the critic none either (critic_state off):
+# a critic that knows them trains an encoder that need not locate them, and the actor reads that encoder's features
+# (on the reach test such a critic still learned, a bit slower: tests/robots/test_pixel_learning.py).
+IMAGE_TASK = {"cameras": ("front", "wrist"), "image_size": 32, "frame_stack": 2, "critic_state": False}
+# --asymmetric: the critic also reads the privileged state; the image-only actor gets an encoder of its own.
+ASYMMETRIC_TASK, ASYMMETRIC_RECIPE = {"critic_state": True}, {"actor_encoder": True}
 # With images, on top of the algorithm's recipe: an encoder of two strided 8-channel convolutions and utd 0.5, so
 # that the plain commands finish on a 2-core CPU (RLPD's gradient step at batch 128 there: 13 ms; DrQ's four
 # 32-channel convolutions at 64 px: 654 ms; rlpd_franka_peg.py --total_steps=2000: 135-150 s wall). On a GPU:
@@ -79,6 +88,8 @@ flags.DEFINE_string("demos", "", "prior data (RLPD): a replay store of demonstra
 flags.DEFINE_bool("dense_reward", None, "sim: robots this run starts: dense shaped reward plus the success bonus "
                   "(else 1 on success only); default: the experiment's")
 flags.DEFINE_integer("num_demos", 20, "scripted-expert episodes recorded when --demos is not given (RLPD)")
+flags.DEFINE_bool("asymmetric", False, "with --observation=images: the critic also reads the privileged state "
+                  "(object poses) and the actor, which reads images and proprioception only, has its own encoder")
 flags.DEFINE_enum("observation", None, list(OBSERVATIONS), "what the policy sees besides proprioception: images "
                   "(camera frames), state (the object state) or proprio (nothing else); default: the experiment's")
 
@@ -122,8 +133,13 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     except ValueError as e:
         raise FlagError(str(e)) from e
     images = (FLAGS.observation or observation) == "images"
-    task_recipe = {**ROBOT_TASK, **OBSERVATIONS[FLAGS.observation or observation], **task_recipe}
-    recipe = {**recipe, **(IMAGE_RECIPE if images else {})}
+    if FLAGS.asymmetric and not images:
+        raise FlagError("--asymmetric: with --observation=images only (without images the critic reads the privileged "
+                        "state anyway)")
+    asymmetric = FLAGS.asymmetric and images
+    task_recipe = {**ROBOT_TASK, **OBSERVATIONS[FLAGS.observation or observation], **task_recipe,
+                   **(ASYMMETRIC_TASK if asymmetric else {})}
+    recipe = {**recipe, **(IMAGE_RECIPE if images else {}), **(ASYMMETRIC_RECIPE if asymmetric else {})}
     n = len(entries)
     periodic = FLAGS.eval_every > 0
     if not FLAGS["eval_envs"].present:
@@ -156,6 +172,9 @@ def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
             check_algo(module, SimpleNamespace(name=run.task, image_shape=image_shape), config)
         except ValueError as e:
             raise FlagError(f"--observation=images: {e}") from e
+    if image_shape and task_config.critic_state and not config.actor_encoder:
+        raise FlagError("--observation=images with a critic that reads the privileged state (critic_state) needs the "
+                        "actor's own encoder (actor_encoder): use --asymmetric")
     if image_shape and "replay_capacity" not in parse_overrides(FLAGS.config):
         # images make a transition ~100x larger: the ring holds the run's steps at most (all of them, once)
         config = dataclasses.replace(config, replay_capacity=min(config.replay_capacity, run.total_steps))

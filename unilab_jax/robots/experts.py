@@ -156,11 +156,26 @@ class PegInsertionExpert:
         return move_action(tcp, quat, tcp + (bottom - tip), q, CLOSED, self.spec, max_speed=self.descend_speed)
 
 
-EXPERTS = {"pick_place": PickPlaceExpert, "peg_insertion": PegInsertionExpert}
-PAIRS = (("peg_insertion", "franka"), ("pick_place", "franka"), ("pick_place", "ur5e"), ("peg_insertion", "ur5e"))
+class ReachExpert:
+    """Straight over the target, at the current height, gripper open."""
+
+    def __init__(self, spec: RobotSpec):
+        self.spec = spec
+
+    def reset(self) -> None:
+        pass
+
+    def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        tcp, quat, _, state = _split(obs)
+        return move_action(tcp, quat, np.array([state[0], state[1], tcp[2]]), grasp_quat(0.0), OPEN, self.spec)
 
 
-def make_expert(spec: RobotSpec) -> PickPlaceExpert | PegInsertionExpert:
+EXPERTS = {"pick_place": PickPlaceExpert, "peg_insertion": PegInsertionExpert, "reach": ReachExpert}
+PAIRS = (("peg_insertion", "franka"), ("pick_place", "franka"), ("pick_place", "ur5e"), ("peg_insertion", "ur5e"),
+         ("reach", "franka"))
+
+
+def make_expert(spec: RobotSpec) -> PickPlaceExpert | PegInsertionExpert | ReachExpert:
     """The scripted expert of ``spec.task``."""
     if spec.task not in EXPERTS:
         raise ValueError(f"no scripted expert for task {spec.task!r}; available: {sorted(EXPERTS)}")

@@ -1,4 +1,5 @@
-"""Manipulation tasks of the RLinf-USER kind: peg insertion and pick-and-place into a bin.
+"""Manipulation tasks of the RLinf-USER kind: peg insertion and pick-and-place into a bin; and a reach task
+whose target only the cameras show (the image learners' test).
 
 A task adds its objects to an arm's MjSpec (``build``), finds them in the compiled model (``bind``),
 places them at random at each reset (``randomize``) and reads the privileged state the reward and the
@@ -19,6 +20,9 @@ State vectors (float64, world frame, metres):
   opening; their difference (what the task asks to close to within 1.5 mm, given directly to policies).
 * ``pick_place``: ``[object (3), object quat (4), bin (3)]``: the cube's centre and orientation;
   the centre of the bin's floor.
+* ``reach``: ``[target (3), tcp - target (3)]``: a flat green disc on the table (visual only, nothing
+  collides with it) placed at random; success: the tcp within ``reach_radius`` of it in the plane, at any height.
+  The proprioception holds the tcp, never the target: a policy finds it in the images (front or wrist camera).
 """
 
 from __future__ import annotations
@@ -274,7 +278,51 @@ def object_yaw(state: np.ndarray) -> float:
     return yaw_of_quat(state[3:7])
 
 
-TASKS: dict[str, type[ManipulationTask]] = {PegInsertion.name: PegInsertion, PickPlace.name: PickPlace}
+# --------------------------------------------------------------------------------------------------
+# Reach a target seen only by the cameras
+# --------------------------------------------------------------------------------------------------
+def reach_potential(tcp: np.ndarray, target: np.ndarray) -> float:
+    """In [0, 1]: closeness of the tcp to the target in the plane (10 / m)."""
+    return float(1.0 - np.tanh(10.0 * np.linalg.norm(tcp[:2] - target[:2])))
+
+
+class Reach(ManipulationTask):
+    """The tcp goes over a green disc placed at random on the table (gripper open, nothing to grasp)."""
+
+    name = "reach"
+    episode_length = 100
+    state_dim = 6
+    arms = ("franka", "ur5e")
+    target_x = (0.35, 0.55)
+    target_y = (-0.12, 0.12)
+    target_radius = 0.03
+    reach_radius = 0.02  # success: the tcp this close to the target's centre in the plane
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        target = spec.worldbody.add_body(name="target", mocap=True, pos=[0.45, 0.0, 0.0])
+        target.add_geom(name="target", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[self.target_radius, 0.001, 0],
+                        pos=[0, 0, 0.001], contype=0, conaffinity=0, rgba=[0.1, 0.8, 0.2, 1.0])
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        self._mocap = model.body("target").mocapid[0]
+        self._tcp = model.site("tcp").id
+
+    def randomize(self, model, data, rng):
+        data.mocap_pos[self._mocap] = [rng.uniform(*self.target_x), rng.uniform(*self.target_y), 0.0]
+
+    def state(self, model, data):
+        target = data.mocap_pos[self._mocap]
+        return np.concatenate([target, data.site_xpos[self._tcp] - target])
+
+    def success(self, state, tcp):
+        return bool(np.linalg.norm(tcp[:2] - state[:2]) < self.reach_radius)
+
+    def potential(self, state, tcp):
+        return reach_potential(tcp, state[:3])
+
+
+TASKS: dict[str, type[ManipulationTask]] = {PegInsertion.name: PegInsertion, PickPlace.name: PickPlace,
+                                            Reach.name: Reach}
 
 
 def make_task(name: str, kind: str, dense_reward: bool = False) -> ManipulationTask:

@@ -110,9 +110,6 @@ def _ur5e() -> mujoco.MjSpec:
     for s in (spec, gripper):
         for key in list(s.keys):
             s.delete(key)
-    # The UR5e's default light follows a link; the scene brings its own.
-    for light in list(spec.lights):
-        spec.delete(light)
     spec.option.cone = gripper.option.cone
     spec.option.impratio = gripper.option.impratio
     spec.attach(gripper, prefix="gripper/", site=spec.site("attachment_site"))
@@ -132,11 +129,22 @@ def _add_world(spec: mujoco.MjSpec, hand_body: str) -> None:
     spec.visual.global_.offheight = 256
     spec.visual.quality.offsamples = 0
     world = spec.worldbody
-    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1.5, 1.5, 0.01],
-                   rgba=[0.55, 0.5, 0.45, 1.0])
+    # The Menagerie models' own lights go (the Franka's: 0.7 from above; the UR5e's follows a link): the scene's light.
+    for light in list(spec.lights):
+        spec.delete(light)
+    # Exposure: a matte floor (no specular highlight) and light that adds up to ~1.2 on a face turned up (ambient,
+    # headlight, the two lights), so the brightest object colours (0.75-0.85) stay below saturation. Before, with
+    # the Franka model's own 0.7 light on top, MuJoCo's default specular 0.5 on the floor and a brighter headlight,
+    # over half of the downward-looking wrist camera's pixels were 250-255 (white floor, pale objects).
+    spec.visual.headlight.ambient = [0.2, 0.2, 0.2]
+    spec.visual.headlight.diffuse = [0.2, 0.2, 0.2]
+    spec.visual.headlight.specular = [0.0, 0.0, 0.0]
+    floor = spec.add_material(name="floor", rgba=[0.55, 0.5, 0.45, 1.0], specular=0.0, shininess=0.0,
+                              reflectance=0.0)
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1.5, 1.5, 0.01], material=floor.name)
     world.add_light(pos=[0.4, 0.0, 1.5], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-                    diffuse=[0.7, 0.7, 0.7])
-    world.add_light(pos=[1.2, -0.8, 1.0], dir=[-0.6, 0.5, -0.6], diffuse=[0.3, 0.3, 0.3])
+                    diffuse=[0.5, 0.5, 0.5], specular=[0.1, 0.1, 0.1])
+    world.add_light(pos=[1.2, -0.8, 1.0], dir=[-0.6, 0.5, -0.6], diffuse=[0.3, 0.3, 0.3], specular=[0.1, 0.1, 0.1])
     # Looking at the workspace from the front-left, slightly above.
     world.add_camera(name="front", pos=[1.05, -0.45, 0.55], xyaxes=[0.6, 0.8, 0.0, -0.3, 0.22, 0.93], fovy=50)
     hand = spec.body(hand_body)

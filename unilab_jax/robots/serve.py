@@ -63,7 +63,7 @@ def parse_limits(args: argparse.Namespace):
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m unilab_jax.robots.serve", description=__doc__.split("::")[0])
     p.add_argument("--robot", required=True, help="arm: franka or ur5e")
-    p.add_argument("--task", required=True, help="peg_insertion or pick_place")
+    p.add_argument("--task", required=True, help="peg_insertion, pick_place or reach")
     p.add_argument("--name", default="", help="robot name (default ARM_TASK)")
     p.add_argument("--host", default="127.0.0.1", help="IP address to listen on (not loopback: needs --key, --allow)")
     p.add_argument("--key", default="", help="the server's NAME.key_secret (python -m unilab_jax.robots.keys)")
@@ -78,6 +78,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--noise", type=float, default=0.001, help="std of the proprioceptive noise")
     p.add_argument("--cameras", default="front,wrist", help="comma-separated camera names, or none")
     p.add_argument("--image_size", type=int, default=64)
+    p.add_argument("--camera_geometry", default="visual", help="what the cameras draw of the arm: visual (its meshes) "
+                   "or collision (its collision shapes, ~10x cheaper in software GL)")
     p.add_argument("--reset_s", type=float, default=2.0, help="reset duration at speed 1 (s)")
     p.add_argument("--dense_reward", action="store_true")
     p.add_argument("--lease_s", type=float, default=5.0)
@@ -120,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
                               seed=args.seed, key_file=args.key, allow_dir=args.allow)
         sim = SimConfig(arm=args.robot, task=args.task, name=args.name, speed=args.speed,
                         latency_s=args.latency_ms / 1000, jitter_s=args.jitter_ms / 1000, proprio_noise=args.noise,
-                        cameras=cameras, image_size=args.image_size, reset_seconds=args.reset_s,
+                        cameras=cameras, image_size=args.image_size, camera_geometry=args.camera_geometry,
+                        reset_seconds=args.reset_s,
                         dense_reward=args.dense_reward, seed=args.seed, limits=parse_limits(args))
         robot = SimRobot(sim)
         server = RobotServer(robot, config)

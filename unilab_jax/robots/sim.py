@@ -8,7 +8,9 @@
   ``max_hold_periods``) and counted in ``health().late_actions``;
 * actuator latency and jitter: a command reaches the servos ``latency_s + |N(0, jitter_s)|`` simulated
   seconds after the step starts (a command later than the period applies during the next one);
-* Gaussian noise on proprioception; RGB cameras (``front``, ``wrist``) rendered with ``mujoco.Renderer``;
+* Gaussian noise on proprioception; RGB cameras (``front``, ``wrist``) rendered with ``mujoco.Renderer``
+  (``camera_geometry="collision"`` draws the arm with its collision geometry instead of its visual meshes: the
+  Franka's ~400k mesh vertices cost 15 ms a frame at any size in software GL, its collision shapes ~1.5 ms);
 * resets that block for ``reset_seconds / speed`` wall seconds;
 * end-effector control: the action moves a target tcp pose; damped-least-squares IK turns it into
   joint-position targets for the arm's servos, so every arm shares one action space;
@@ -45,6 +47,8 @@ from unilab_jax.robots.manipulation import TASKS, make_task
 
 PROPRIO_DIM = 13
 CAMERAS = ("front", "wrist")
+CAMERA_GEOMETRY = ("visual", "collision")
+HIDDEN_GROUP = 5  # geom group the cameras leave out (the visual meshes with camera_geometry="collision")
 # The tcp may wander this far from its measured position (no wind-up while pushing against contact).
 MAX_TARGET_LEAD = 0.05
 TARGET_LOW, TARGET_HIGH = limits.SafetyLimits().target_box()
@@ -63,6 +67,7 @@ class SimConfig:
     proprio_noise: float = 0.001  # std of the noise on every proprioceptive entry
     cameras: tuple[str, ...] = CAMERAS
     image_size: int = 64
+    camera_geometry: str = "visual"  # what the cameras draw of the arm: its visual meshes, or its collision geometry
     reset_seconds: float = 2.0  # how long a reset blocks at speed 1
     dense_reward: bool = False
     max_delta_pos: float = 0.03  # metres per step at |action| = 1
@@ -89,6 +94,8 @@ class SimConfig:
         if not all(np.isfinite(v) and v >= 0 for v in finite):
             raise ValueError(f"latency_s, jitter_s, proprio_noise and reset_seconds must be finite and >= 0, got "
                              f"{finite}")
+        if self.camera_geometry not in CAMERA_GEOMETRY:
+            raise ValueError(f"camera_geometry must be one of {CAMERA_GEOMETRY}, got {self.camera_geometry!r}")
         substeps = 1.0 / (self.control_hz * self.timestep)
         if abs(substeps - round(substeps)) > 1e-6:
             raise ValueError(f"1 / (control_hz * timestep) = {substeps} must be an integer")
@@ -145,6 +152,12 @@ class SimRobot(Robot):
             reset_seconds=config.reset_seconds)
         self._rng = np.random.default_rng(config.seed)
         self._renderer = None
+        self._scene_option = mujoco.MjvOption()
+        if config.camera_geometry == "collision":
+            m = self.model
+            visual = (m.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & (m.geom_contype == 0) & (m.geom_conaffinity == 0)
+            m.geom_group[:] = np.where(visual, HIDDEN_GROUP, 0)
+            self._scene_option.geomgroup[HIDDEN_GROUP] = 0
         self._home_q = self._solve_home()
         self._state = "ok"
         self._detail = ""
@@ -385,7 +398,7 @@ class SimRobot(Robot):
         privileged = np.concatenate([d.site_xpos[site], quat, [opening], self.task.state(m, d)])
         obs = {"proprio": proprio.astype(np.float32), "privileged": privileged.astype(np.float32)}
         for cam in self.config.cameras:
-            self._renderer.update_scene(d, camera=cam)
+            self._renderer.update_scene(d, camera=cam, scene_option=self._scene_option)
             obs[cam] = self._renderer.render().copy()
         return obs
 

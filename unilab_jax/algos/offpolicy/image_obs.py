@@ -14,10 +14,18 @@ image before auto-reset, like ``next_obs``). Then (Kostrikov et al., DrQ, arXiv:
   ``obs ++ stop_gradient(features(image))`` for the actor (the actor loss never trains the encoder; its
   features come from the freshly updated encoder), and ``next_obs ++ f'``, ``next_critic_obs ++ f'`` with
   ``f'`` the target encoder's features of ``next_image`` (gradient-stopped) for the soft target.
+* ``actor_encoder`` (an asymmetric actor-critic whose critic also reads privileged state, e.g. the robot tasks'
+  ``critic_state``): the actor gets an encoder of its own, ``actor = {"net": the algorithm's actor, "encoder":
+  encoder}``, trained by the actor loss (its gradient through Q's action reaches it), and reads
+  ``obs ++ features_actor(image)``; the soft target's next action reads ``next_obs ++ features_actor(next_image)``
+  (gradient-stopped). The critic's encoder, trained by the critic, serves the critic only: a critic that knows the
+  object poses needs no image features that locate them, so what its shared features tell the actor would be a
+  by-product of the critic's fit.
 * The normalizers keep running over ``obs`` / ``critic_obs`` only; the features (bounded by tanh) pass
   through them unscaled (``widen_stats``: mean 0, variance 1).
-* Published weights add ``encoder`` and ``encoder_strides`` (int32); ``act(..., image=)`` encodes the
-  worker's images with them (numpy in the rollout workers, ``xp.conv2d``'s im2col).
+* Published weights add ``encoder`` (the actor's with ``actor_encoder``, else the critic's) and
+  ``encoder_strides`` (int32); ``act(..., image=)`` encodes the worker's images with them (numpy in the rollout
+  workers, ``xp.conv2d``'s im2col).
 """
 
 from __future__ import annotations
@@ -67,12 +75,16 @@ def check_algo(algo: ModuleType, spec: Any, config: Any) -> None:
 
 def init_params(algo: ModuleType, shape: tuple[int, ...], key: Any, obs_dim: int, critic_obs_dim: int,
                 action_dim: int, config: Any, xp: shim.Backend) -> dict[str, Any]:
-    """The algorithm's networks on inputs widened by ``feature_dim``, the encoder beside the critic."""
-    k_net, k_enc = xp.random.split(key, 2)
+    """The algorithm's networks on inputs widened by ``feature_dim``, the encoder beside the critic (and, with
+    ``actor_encoder``, another beside the actor)."""
+    k_net, k_enc, k_actor = xp.random.split(key, 3)
     f = config.feature_dim
     params = algo.init_params(k_net, obs_dim + f, critic_obs_dim + f, action_dim, config, xp)
     encoder = pixels.encoder_init(k_enc, shape, config.encoder_channels, config.encoder_strides, f, xp)
     params["critic"] = {"net": params["critic"], "encoder": encoder}
+    if config.actor_encoder:
+        own = pixels.encoder_init(k_actor, shape, config.encoder_channels, config.encoder_strides, f, xp)
+        params["actor"] = {"net": params["actor"], "encoder": own}
     return params
 
 
@@ -83,16 +95,18 @@ def widen_stats(stats: normalizer.RunningStats, n: int) -> normalizer.RunningSta
                                    xp.concat([stats.var, xp.ones((n,), dtype=xp.float32)]), stats.count)
 
 
-def _widen(norms: Any, mb: dict, feat: Any, next_feat: Any = None) -> tuple[Any, dict]:
-    """Norms and minibatch of the widened observations (``next_*`` only when ``next_feat`` is given)."""
-    xp = shim.namespace(feat)
-    n = int(feat.shape[-1])
-    cat = lambda a, f: xp.concat([a, f], axis=-1)  # noqa: E731
-    fixed = xp.stop_gradient(feat)
-    mb = {**mb, "obs": cat(mb["obs"], fixed), "critic_obs": cat(mb["critic_obs"], feat)}
-    if next_feat is not None:
-        mb.update(next_obs=cat(mb["next_obs"], next_feat), next_critic_obs=cat(mb["next_critic_obs"], next_feat))
+def _widen(norms: Any, mb: dict, feats: dict[str, Any]) -> tuple[Any, dict]:
+    """Norms and minibatch with ``feats[k]`` appended to ``mb[k]`` (``k`` among obs, critic_obs, next_obs,
+    next_critic_obs; all features of one width)."""
+    xp = shim.namespace(*feats.values())
+    n = int(next(iter(feats.values())).shape[-1])
+    mb = {**mb, **{k: xp.concat([mb[k], f], axis=-1) for k, f in feats.items()}}
     return norms._replace(obs=widen_stats(norms.obs, n), critic=widen_stats(norms.critic, n)), mb
+
+
+def _actor_parts(actor: Any, config: Any) -> tuple[Any, Any]:
+    """(the algorithm's actor, the actor's own encoder or None)."""
+    return (actor["net"], actor["encoder"]) if config.actor_encoder else (actor, None)
 
 
 def critic_loss(algo: ModuleType) -> Callable:
@@ -104,19 +118,25 @@ def critic_loss(algo: ModuleType) -> Callable:
         strides = config.encoder_strides
         feat = pixels.encode(critic["encoder"], mb["image"], strides)
         next_feat = xp.stop_gradient(pixels.encode(target_critic["encoder"], mb["next_image"], strides))
-        norms, mb = _widen(norms, mb, feat, next_feat)
+        actor, own = _actor_parts(actor, config)
+        next_actor_feat = next_feat if own is None else xp.stop_gradient(pixels.encode(own, mb["next_image"], strides))
+        norms, mb = _widen(norms, mb, {"critic_obs": feat, "next_obs": next_actor_feat, "next_critic_obs": next_feat})
         return algo.critic_loss(critic["net"], target_critic["net"], actor, log_alpha, norms, mb, noise, config)
 
     return loss
 
 
 def actor_loss(algo: ModuleType) -> Callable:
-    """``algo.actor_loss`` on gradient-stopped features of the (updated) critic's encoder (same signature)."""
+    """``algo.actor_loss`` on features of the image (same signature): gradient-stopped ones of the (updated)
+    critic's encoder, or with ``actor_encoder`` the actor's own (trained by this loss) for the actor's input."""
 
     def loss(actor: Any, critic: dict, log_alpha: Any, norms: Any, mb: dict, eps: Any, config: Any) -> tuple:
         xp = shim.namespace(log_alpha)
-        feat = xp.stop_gradient(pixels.encode(critic["encoder"], mb["image"], config.encoder_strides))
-        norms, mb = _widen(norms, mb, feat)
+        strides = config.encoder_strides
+        feat = xp.stop_gradient(pixels.encode(critic["encoder"], mb["image"], strides))
+        actor, own = _actor_parts(actor, config)
+        norms, mb = _widen(norms, mb, {"obs": feat if own is None else pixels.encode(own, mb["image"], strides),
+                                       "critic_obs": feat})
         return algo.actor_loss(actor, critic["net"], log_alpha, norms, mb, eps, config)
 
     return loss
@@ -136,10 +156,13 @@ def shift_shape(batch_size: int) -> tuple[int, int, int]:
     return (2, batch_size, 2)
 
 
-def add_encoder(weights: dict, critic: dict, config: Any) -> dict:
-    """Published weights with the encoder and its strides (what ``actor_inputs`` reads)."""
-    xp = shim.namespace(critic["encoder"]["linear"]["w"])
-    return {**weights, "encoder": critic["encoder"],
+def add_encoder(weights: dict, actor: Any, critic: dict, config: Any) -> dict:
+    """Published weights (``weights["actor"]`` the algorithm's actor) with the encoder the actor reads and its
+    strides (what ``actor_inputs`` reads): the actor's own with ``actor_encoder``, else the critic's."""
+    actor, own = _actor_parts(actor, config)
+    encoder = critic["encoder"] if own is None else own
+    xp = shim.namespace(encoder["linear"]["w"])
+    return {**weights, "actor": actor, "encoder": encoder,
             "encoder_strides": xp.asarray(list(config.encoder_strides), dtype=xp.int32)}
 
 

@@ -191,7 +191,7 @@ class SACFamilyBase:
 
     def weights(self, state: SACState) -> dict:
         weights = sac.policy_weights(state.actor, state.obs_norm)
-        return image_obs.add_encoder(weights, state.critic, self.config) if self.image_shape else weights
+        return image_obs.add_encoder(weights, state.actor, state.critic, self.config) if self.image_shape else weights
 
     def reward_scale(self, state: SACState) -> Any:
         if self._reward_scale is None:

@@ -74,6 +74,10 @@ class SACConfig(OffPolicyConfig):
     encoder_strides: tuple[int, ...] = (2, 1, 1, 1)
     feature_dim: int = 50
     image_pad: int = 4
+    # The actor gets its own encoder, trained by the actor loss (``image_obs``): for an asymmetric actor-critic
+    # whose critic also reads privileged state (the robot tasks' ``critic_state``), whose encoder need not learn
+    # what the actor must see. False: the actor reads the critic encoder's features, gradient-stopped (DrQ).
+    actor_encoder: bool = False
 
     def problems(self) -> list[str]:
         problems = super().problems()
