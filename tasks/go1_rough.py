@@ -42,14 +42,10 @@ NAME = "go1_joystick_rough"
 
 
 @dataclasses.dataclass(frozen=True)
-class Go1RoughConfig(Go1JoystickConfig, rough.RoughConfig):
+class Go1RoughConfig(Go1JoystickConfig, rough.SmallQuadrupedRough):
     """``go1_joystick_flat``'s fields plus the terrain's (``rough.RoughConfig``), with Go1-sized terrain."""
 
-    terrain_rough_height: tuple[float, float] = (0.01, 0.06)
-    terrain_step_width: float = 0.25
-    terrain_step_height: tuple[float, float] = (0.02, 0.14)
-    terrain_obstacle_height: tuple[float, float] = (0.02, 0.14)
-    dr_motor_strength: tuple[float, float] = (0.9, 1.1)
+    dr_motor_strength: tuple[float, float] = (0.9, 1.1)  # on for rough ground (the flat task's default: off)
     dr_action_delay: tuple[int, int] = (0, 1)
 
 

@@ -68,6 +68,16 @@ class RoughConfig:
     command_threshold: float = 0.8
 
 
+@dataclasses.dataclass(frozen=True)
+class SmallQuadrupedRough(RoughConfig):
+    """``RoughConfig``'s terrain sized for a small quadruped (Go1, Go2: ~0.3 m legs)."""
+
+    terrain_rough_height: tuple[float, float] = (0.01, 0.06)
+    terrain_step_width: float = 0.25
+    terrain_step_height: tuple[float, float] = (0.02, 0.14)
+    terrain_obstacle_height: tuple[float, float] = (0.02, 0.14)
+
+
 def terrain_config(c: RoughConfig) -> terrain.TerrainConfig:
     return terrain.TerrainConfig(
         levels=c.terrain_levels, columns=tuple(c.terrain_columns), cell_size=c.terrain_cell_size,

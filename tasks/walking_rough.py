@@ -38,14 +38,10 @@ from tasks.go2_joystick import Go2JoystickConfig, Go2JoystickFlat
 
 
 @dataclasses.dataclass(frozen=True)
-class Go2RoughConfig(Go2JoystickConfig, rough.RoughConfig):
+class Go2RoughConfig(Go2JoystickConfig, rough.SmallQuadrupedRough):
     """``go2_joystick_flat``'s fields plus the terrain's, with Go2-sized terrain and actuation randomisation."""
 
-    terrain_rough_height: tuple[float, float] = (0.01, 0.06)
-    terrain_step_width: float = 0.25
-    terrain_step_height: tuple[float, float] = (0.02, 0.14)
-    terrain_obstacle_height: tuple[float, float] = (0.02, 0.14)
-    dr_motor_strength: tuple[float, float] = (0.9, 1.1)
+    dr_motor_strength: tuple[float, float] = (0.9, 1.1)  # on for rough ground (the flat task's default: off)
     dr_action_delay: tuple[int, int] = (0, 1)
 
 
