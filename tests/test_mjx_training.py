@@ -11,6 +11,7 @@ import sys
 
 import numpy as np
 import pytest
+from script_helpers import run_in_process
 
 from unilab_jax import algos
 from unilab_jax.config import apply_overrides
@@ -107,8 +108,15 @@ def test_mjx_trainer_rejects_async_algorithms():
     ("--config=batch_size=-1", "batch_size"),
 ])
 def test_mjx_experiment_flags_fail_early(tmp_path, flag, message):
-    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "fastsac_go1_mjx.py"), flag,
-                          f"--logdir={tmp_path / 'x'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    # In this process (tests/script_helpers.py); the test below checks a real process's exit status.
+    out = run_in_process("fastsac_go1_mjx.py", flag, f"--logdir={tmp_path / 'x'}")
     assert out.returncode == 2, out.stderr[-2000:]
     assert message in out.stderr and "Traceback" not in out.stderr
+
+
+def test_mjx_experiment_bad_flag_exits_2_in_a_real_process(tmp_path):
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "fastsac_go1_mjx.py"), "--num_workers=4",
+                          f"--logdir={tmp_path / 'x'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert "--num_workers is a flag of the CPU-worker runtime" in out.stderr and "Traceback" not in out.stderr
 
