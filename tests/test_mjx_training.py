@@ -11,6 +11,7 @@ import sys
 
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
 from script_helpers import run_in_process
 
 from unilab_jax import algos
@@ -18,7 +19,7 @@ from unilab_jax.config import apply_overrides
 from unilab_jax.training.mjx import MjxRunConfig, OffPolicyMjxTrainer, PPOMjxTrainer, make_trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-OPTS = {"xla_backend_optimization_level": 0}
+OPTS = FAST_COMPILE
 TASK = {"noise_level": 0.0, "episode_length": 20}  # the env of tests/tasks/test_mjx_parity.py (compiled once)
 M = 8
 
