@@ -5,6 +5,7 @@ import json
 import os
 
 import pytest
+from script_helpers import run, run_in_process
 
 import unilab_jax
 from unilab_jax.config import ConfigError
@@ -78,17 +79,8 @@ def test_report_names_the_extra_and_ends_with_the_warning(capsys):
     assert "unilab-jax[tensorboard]" in out[-3] and out[-1] == "warning: no learner update"
 
 
-def _help(script):
-    import subprocess
-    import sys
-
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    return subprocess.run([sys.executable, os.path.join(root, "experiments", script), "--help"], cwd=root,
-                          capture_output=True, text=True, timeout=120)
-
-
 def test_help_lists_the_run_flags_and_the_configs():
-    ppo = _help("ppo_cartpole.py")
+    ppo = run("ppo_cartpole.py", "--help", timeout=120)  # a real process; the others run in this one
     assert ppo.returncode == 0, ppo.stderr[-2000:]
     out = ppo.stdout
     assert "--total_steps (default: 200_000)" in out and "--num_workers (default: 2)" in out
@@ -96,7 +88,7 @@ def test_help_lists_the_run_flags_and_the_configs():
     assert "horizon = 32 [recipe; default 24]" in out and "control steps per trajectory slot" in out
     assert "task cartpole_balance" in out and "|cart x| beyond this terminates" in out  # the task's
     assert "--replay_dir" not in out and "--utd_mode" not in out  # PPO reads no replay flags
-    sac = _help("sac_cartpole.py")
+    sac = run_in_process("sac_cartpole.py", "--help")
     assert sac.returncode == 0 and "--replay_dir" in sac.stdout and "actor_learning_rate = 0.001 [recipe" in sac.stdout
 
 
@@ -104,7 +96,7 @@ def test_help_lists_the_run_flags_and_the_configs():
                                            ("sac_franka_pick.py", "--robots"), ("hora_go1.py", "stage 2: hora_student"),
                                            ("hgdagger_franka_pick.py", "--rounds (default: 5)")])
 def test_help_of_every_command_line_family(script, expect):
-    out = _help(script)
+    out = run_in_process(script, "--help")
     assert out.returncode == 0 and expect in out.stdout and "--total_steps" in out.stdout, out.stderr[-2000:]
 
 

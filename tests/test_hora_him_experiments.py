@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import pytest
+from script_helpers import run_in_process
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # One worker with 4 envs, 8-step slots, 20-step episodes, small networks: every stage is one or two updates.
@@ -65,6 +66,13 @@ def test_him_ppo_go1_runs(tmp_path):
     ("him_ppo_go1.py", "--task_config=history_extrinsics=True", "history_extrinsics=False"),
 ])
 def test_bad_flags_fail_before_workers_start(tmp_path, script, flag, message):
-    out = _run(script, flag, f"--logdir={tmp_path / 'x'}", timeout=120)
+    # In this process (tests/script_helpers.py); the test below checks a real process's exit status.
+    out = run_in_process(script, flag, f"--logdir={tmp_path / 'x'}")
     assert out.returncode == 2, out.stderr[-2000:]
     assert message in out.stderr and "Traceback" not in out.stderr
+
+
+def test_bad_flag_fails_in_a_real_process(tmp_path):
+    out = _run("hora_go1.py", "--resume", f"--logdir={tmp_path / 'x'}", timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert "no checkpoints under" in out.stderr and "Traceback" not in out.stderr

@@ -11,13 +11,15 @@ import sys
 
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
+from script_helpers import run_in_process
 
 from unilab_jax import algos
 from unilab_jax.config import apply_overrides
 from unilab_jax.training.mjx import MjxRunConfig, OffPolicyMjxTrainer, PPOMjxTrainer, make_trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-OPTS = {"xla_backend_optimization_level": 0}
+OPTS = FAST_COMPILE
 TASK = {"noise_level": 0.0, "episode_length": 20}  # the env of tests/tasks/test_mjx_parity.py (compiled once)
 M = 8
 
@@ -107,8 +109,15 @@ def test_mjx_trainer_rejects_async_algorithms():
     ("--config=batch_size=-1", "batch_size"),
 ])
 def test_mjx_experiment_flags_fail_early(tmp_path, flag, message):
-    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "fastsac_go1_mjx.py"), flag,
-                          f"--logdir={tmp_path / 'x'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    # In this process (tests/script_helpers.py); the test below checks a real process's exit status.
+    out = run_in_process("fastsac_go1_mjx.py", flag, f"--logdir={tmp_path / 'x'}")
     assert out.returncode == 2, out.stderr[-2000:]
     assert message in out.stderr and "Traceback" not in out.stderr
+
+
+def test_mjx_experiment_bad_flag_exits_2_in_a_real_process(tmp_path):
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "fastsac_go1_mjx.py"), "--num_workers=4",
+                          f"--logdir={tmp_path / 'x'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert "--num_workers is a flag of the CPU-worker runtime" in out.stderr and "Traceback" not in out.stderr
 

@@ -5,15 +5,12 @@ from __future__ import annotations
 
 import math
 import os
-import subprocess
-import sys
 
 import pytest
+from script_helpers import run_in_process
 
 from unilab_jax import sizing
 from unilab_jax.apps import cli
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 @pytest.mark.parametrize("cores,on_cpu,workers", [
@@ -78,7 +75,7 @@ def test_auto_flags_reach_the_run_config(tmp_path, capsys):
     ("--envs_per_worker=0", 2, "--envs_per_worker must be at least 1"),
 ])
 def test_bad_sizing_flags_fail_before_workers_start(tmp_path, flag, code, message):
-    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "ppo_cartpole.py"), flag,
-                          f"--logdir={tmp_path / 'x'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    # In this process (tests/script_helpers.py): absl's parse error exits 1, the run's own checks 2.
+    out = run_in_process("ppo_cartpole.py", flag, f"--logdir={tmp_path / 'x'}")
     assert out.returncode == code, out.stderr[-2000:]
     assert message in out.stderr and "Traceback" not in out.stderr

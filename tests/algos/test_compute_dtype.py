@@ -12,6 +12,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
 
 jax = pytest.importorskip("jax")
 jnp = jax.numpy
@@ -25,7 +26,6 @@ from unilab_jax.algos.offpolicy.sac import Norms  # noqa: E402
 from unilab_jax.core import normalizer  # noqa: E402
 
 XP = shim.get("jax")
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
 SPEC = TaskSpec("go1_sizes", 48, 123, 12, 1, 0.02, ())  # Go1's observation sizes
 B = 256
 

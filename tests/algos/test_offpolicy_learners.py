@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
 
 jax = pytest.importorskip("jax")
 jnp = jax.numpy
@@ -20,7 +21,6 @@ from unilab_jax import algos, nets  # noqa: E402
 from unilab_jax.algos.offpolicy import flashsac  # noqa: E402
 from unilab_jax.algos.offpolicy import learner_jax as offpolicy_jax  # noqa: E402
 
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
 OBS, A, B = 4, 2, 128
 SPEC = TaskSpec("bandit", OBS, OBS, A, 1, 0.02, ())
 COMMON = dict(actor_hidden=(64, 64), critic_hidden=(64, 64), batch_size=B, actor_learning_rate=1e-3,

@@ -17,6 +17,7 @@ import pytest
 
 mx = pytest.importorskip("mlx.core")
 
+from compile_options import FAST_COMPILE  # noqa: E402
 from mlx_helpers import assert_runs_without_jax, leaf_errors  # noqa: E402
 
 from tasks.base import TaskSpec  # noqa: E402
@@ -77,7 +78,7 @@ def test_one_image_update_matches_jax(name):
 
     module, overrides = CASES[name]
     config = module.Config(**{**SMALL, **overrides})
-    jl = offpolicy_jax.SACFamilyLearner(module, config, SPEC, compiler_options={"xla_backend_optimization_level": 0})
+    jl = offpolicy_jax.SACFamilyLearner(module, config, SPEC, compiler_options=FAST_COMPILE)
     ml = mlx_off.SACFamilyLearner(module, config, SPEC)
     js = jl.init(jax.random.PRNGKey(0))
     like = ml.init(mx.random.key(0))

@@ -16,6 +16,7 @@ import pytest
 
 mx = pytest.importorskip("mlx.core")
 
+from compile_options import FAST_COMPILE  # noqa: E402
 from mlx_helpers import assert_runs_without_jax  # noqa: E402
 from mlx_helpers import leaf_errors as _leaf_errors  # noqa: E402
 
@@ -85,7 +86,7 @@ def _learners(name: str):
     from unilab_jax.algos.offpolicy import learner_jax as offpolicy_jax
 
     module, config = _config(name)
-    opts = {"xla_backend_optimization_level": 0}
+    opts = FAST_COMPILE
     if module is td3:
         return offpolicy_jax.TD3Learner(config, SPEC, compiler_options=opts), mlx_off.TD3Learner(config, SPEC)
     return (offpolicy_jax.SACFamilyLearner(module, config, SPEC, compiler_options=opts),

@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import pytest
+from script_helpers import run_in_process
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -51,5 +52,11 @@ def test_hgdagger_franka_pick_runs(tmp_path):
     ("sacflow_franka_pick.py", "--config=flow_steps=99", "flow_steps"),
 ])
 def test_bad_flags_exit_2(script, flag, message):
-    out = _run(script, flag, timeout=120)
+    # In this process (tests/script_helpers.py); the test below checks a real process's exit status.
+    out = run_in_process(script, flag)
     assert out.returncode == 2 and message in out.stderr, out.stderr[-2000:]
+
+
+def test_bad_flag_exits_2_in_a_real_process():
+    out = _run("hgdagger_franka_pick.py", "--speed=0", timeout=120)
+    assert out.returncode == 2 and "--speed" in out.stderr and "Traceback" not in out.stderr, out.stderr[-2000:]

@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from script_helpers import run_in_process
 
 from unilab_jax.runtime.replay_store import ReplayStore
 
@@ -76,7 +77,8 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     ("rlpd_franka_peg.py", ["--asymmetric", "--observation=state"], "--asymmetric: with --observation=images only"),
 ])
 def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message):
-    out = _script(script, *args, f"--logdir={tmp_path / 'x'}", timeout=120)
+    # In this process (tests/script_helpers.py); the last check of the test above is a real process's exit 2.
+    out = run_in_process(script, *args, f"--logdir={tmp_path / 'x'}")
     assert out.returncode == 2, out.stderr[-2000:]
     assert message in out.stderr and "Traceback" not in out.stderr
 

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from script_helpers import run_in_process
 
 import tasks
 from tasks.base import StepInterrupted
@@ -57,7 +58,8 @@ def test_sac_franka_pick_trains_on_two_sim_robots(tmp_path):
     ("/nonexistent/robots.toml", "robot inventory '/nonexistent/robots.toml'"),
 ])
 def test_bad_robots_flag_exits_2_before_anything_starts(tmp_path, robots, message):
-    out = _experiment(f"--robots={robots}", f"--logdir={tmp_path / 'x'}", timeout=120)
+    # In this process (tests/script_helpers.py); tests/robots/test_rlpd_experiments.py checks a real process's exit.
+    out = run_in_process(os.path.basename(SCRIPT), f"--robots={robots}", f"--logdir={tmp_path / 'x'}")
     assert out.returncode == 2, out.stderr[-2000:]
     assert message in out.stderr and "Traceback" not in out.stderr
     assert not (tmp_path / "x").exists()

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from compile_options import FAST_COMPILE
 
 import tasks
 from tasks import mjx_allegro
@@ -33,7 +34,7 @@ OVERRIDES = {"noise_level": 0.0, "shapes": ("box",), "episode_length": 100, "obj
 # the CPU task pressing too, the random walk before the step pressed the fingers into the object and the
 # float32 step drifted 1.5e-4 from MuJoCo's in the object's pose.
 PRESS = 0.25
-OPTS = {"xla_backend_optimization_level": 0}  # a third less XLA compile time; numerics unchanged
+OPTS = FAST_COMPILE  # less XLA compile time; numerics unchanged
 
 
 def _cpu_task(seed=1, steps=5):

@@ -21,12 +21,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
 
 import tasks
 from unilab_jax.training.mjx import make_env
 
 M = 8
-OPTS = {"xla_backend_optimization_level": 0}  # a third less XLA compile time; numerics unchanged
+OPTS = FAST_COMPILE  # less XLA compile time; numerics unchanged
 # Noise-free observations (the two engines draw different noise); short episodes. tests/test_mjx_training.py
 # uses the same env, so a process running both compiles it once.
 OVERRIDES = {"noise_level": 0.0, "episode_length": 20}

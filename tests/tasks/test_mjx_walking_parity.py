@@ -27,13 +27,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
 
 import tasks
 from tasks.mjx_walking import WalkingMjxState
 from unilab_jax.training.mjx import make_env
 
 M = 4
-OPTS = {"xla_backend_optimization_level": 0}  # less XLA compile time; numerics unchanged
+OPTS = FAST_COMPILE  # less XLA compile time; numerics unchanged
 OVERRIDES = {"noise_level": 0.0}  # the two engines draw different noise
 TASKS = ("go2_joystick_flat", "g1_walk_flat")
 QPOS_TOL = {"go2_joystick_flat": 1e-4, "g1_walk_flat": 1e-4}
