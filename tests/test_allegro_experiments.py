@@ -8,6 +8,8 @@ import os
 import subprocess
 import sys
 
+from compile_options import fast_compile_env
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # One worker with 4 envs, 8-step slots, 20-step episodes, small networks: every stage is one or two updates.
 TINY = ["--num_workers=1", "--envs_per_worker=4", "--eval_envs=2", "--task_config=episode_length=20",
@@ -16,8 +18,9 @@ METRICS = ("return", "rotation_rate", "time_to_fall", "rotate_reward")
 
 
 def _run(script, *args, timeout=600):
+    # XLA compiles fast (tests/compile_options.py): these budgets make one or two updates, nearly all compile time.
     return subprocess.run([sys.executable, os.path.join(ROOT, "experiments", script), *args], cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout)
+                          capture_output=True, text=True, timeout=timeout, env=fast_compile_env())
 
 
 def test_ppo_allegro_rotate_logs_the_rotation_metrics(tmp_path):

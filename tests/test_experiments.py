@@ -7,14 +7,15 @@ import subprocess
 import sys
 
 import pytest
+from compile_options import fast_compile_env
 from script_helpers import run_in_process
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _run(script, *args, timeout=600):
+def _run(script, *args, timeout=600, env=None):
     return subprocess.run([sys.executable, os.path.join(ROOT, "experiments", script), *args], cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout)
+                          capture_output=True, text=True, timeout=timeout, env=env)
 
 
 def test_ppo_go1_runs_and_resumes(tmp_path):
@@ -47,8 +48,9 @@ def test_ppo_g1_track_runs_and_reports_the_tracking_metric(tmp_path):
     # Issue criterion: ppo_g1_track.py exits 0 on a tiny budget; its evaluation plays the clips from their start.
     logdir = str(tmp_path / "track")
     # 2 x 32 envs (auto sizing gives 1 x 1920 here: 46k steps before the first update, 37 s, 1.5 GB; exits 0 too).
+    # A few updates: XLA compiles fast (tests/compile_options.py).
     out = _run("ppo_g1_track.py", "--total_steps=5000", "--num_workers=2", "--envs_per_worker=32", "--eval_envs=4",
-               f"--logdir={logdir}")
+               f"--logdir={logdir}", env=fast_compile_env())
     assert out.returncode == 0, out.stderr[-3000:]
     summary = json.load(open(os.path.join(logdir, "summary.json")))
     assert summary["env_steps"] >= 5000 and 0.0 <= summary["eval/clip_completion"] <= 1.0
@@ -111,13 +113,14 @@ def test_fastsac_g1_trained_on_mlx_resumes_on_jax(tmp_path):
     small = ["--num_workers=2", "--config=learning_starts=2048", "--config=batch_size=256", "--eval_envs=2",
              "--config=actor_hidden=(64, 64)", "--config=critic_hidden=(64, 64)",
              "--task_config=episode_length=200", f"--logdir={logdir}"]
-    first = _run("fastsac_g1.py", "--platform=mlx", "--total_steps=5000", *small)
+    first = _run("fastsac_g1.py", "--platform=mlx", "--total_steps=5000", *small)  # MLX: XLA_FLAGS play no part
     assert first.returncode == 0, first.stderr[-3000:]
     done = json.load(open(os.path.join(logdir, "summary.json")))
     assert done["updates"] >= 1 and os.listdir(os.path.join(logdir, "checkpoints"))
     # The resumed rings start empty (no --replay_dir) and the pool caps env steps at the budget: 2048 steps refill
     # learning_starts, then 1024 more make one call of 8 gradient steps (utd 8/1024); 5000 leave room for several.
-    second = _run("fastsac_g1.py", "--platform=jax", "--resume", f"--total_steps={done['env_steps'] + 5000}", *small)
+    second = _run("fastsac_g1.py", "--platform=jax", "--resume", f"--total_steps={done['env_steps'] + 5000}", *small,
+                  env=fast_compile_env())  # a few learner calls: XLA compiles fast (tests/compile_options.py)
     assert second.returncode == 0, second.stderr[-3000:]
     resumed = json.load(open(os.path.join(logdir, "summary.json")))
     assert resumed["updates"] > done["updates"] and resumed["env_steps"] >= done["env_steps"] + 5000

@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import pytest
+from compile_options import fast_compile_env
 from script_helpers import run_in_process
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -18,8 +19,9 @@ TINY = ["--num_workers=1", "--envs_per_worker=4", "--eval_envs=1", "--task_confi
 
 
 def _run(script, *args, timeout=600):
+    # XLA compiles fast (tests/compile_options.py): these budgets make one or two updates, nearly all compile time.
     return subprocess.run([sys.executable, os.path.join(ROOT, "experiments", script), *args], cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout)
+                          capture_output=True, text=True, timeout=timeout, env=fast_compile_env())
 
 
 def _rows(path):

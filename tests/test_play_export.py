@@ -12,12 +12,15 @@ import sys
 
 import numpy as np
 import pytest
+from compile_options import fast_compile_env
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _run(args, timeout=600):
-    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    # XLA compiles fast (tests/compile_options.py): the run makes four updates, the commands act a few steps.
+    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                          env=fast_compile_env())
 
 
 @pytest.fixture(scope="module")
