@@ -96,6 +96,9 @@ def deterministic_policy(module: Any, weights: dict, task: Any) -> Callable[[np.
     return lambda obs: module.act(weights, obs, zeros, True)[0]
 
 
+MAX_EVAL_RESTARTS = 3  # interrupted evaluations (robot tasks) started over before the interruption is raised
+
+
 def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_steps: int | None = None,
                  render: tuple[int, int] | None = None,
                  stop: threading.Event | None = None) -> tuple[np.ndarray, dict[str, float]]:
@@ -106,6 +109,7 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     whose termination is success, the ``LOGGED`` entries of the task's own metric where it has one
     (``task.eval_tracker()``, e.g. ``g1_track``'s clip completion), else the walking metric on locomotion tasks).
     The trainer's evaluations run it too; ``stop`` set before the episodes end raises :class:`StopRequested`."""
+    from tasks.base import StepInterrupted
     from tasks.walking_metric import WalkingTracker, is_locomotion
 
     m = task.num_envs
@@ -116,17 +120,30 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
                else WalkingTracker(task) if is_locomotion(task) else None)
     step = tracker.step if tracker is not None else task.step
     renderer = SceneRenderer(task, *render) if render is not None else None
+    restarts = 0
     try:
         obs, _ = task.reset()
         ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
         alive, terminated = np.ones(m, dtype=bool), np.zeros(m, dtype=bool)
         frames = []
-        for _ in range(limit):
+        t = 0
+        while t < limit:
+            t += 1
             if stop is not None and stop.is_set():
                 raise StopRequested("evaluation stopped")
             if renderer is not None and alive[0]:
                 frames.append(renderer.frame())
-            out = step(np.asarray(act(obs), np.float32))
+            try:
+                out = step(np.asarray(act(obs), np.float32))
+            except StepInterrupted as e:
+                # A robot task lost a robot or made a protective stop: every env was reset, so the episodes start
+                # over (a task with its own tracker keeps state across steps: its evaluation cannot restart).
+                restarts += 1
+                if tracker is not None or restarts > MAX_EVAL_RESTARTS:
+                    raise
+                obs, t = e.obs, 0
+                ret[:], length[:], alive[:], terminated[:], frames = 0.0, 0, True, False, []
+                continue
             ret += np.where(alive, out.reward, 0.0)
             length += alive
             terminated |= alive & out.terminated
@@ -139,6 +156,8 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
             renderer.close()
     stats = {"return": float(ret.mean()), "return_std": float(ret.std()), "episode_length": float(length.mean()),
              "episodes": float(m)}
+    if restarts:
+        stats["restarts"] = float(restarts)
     if task.spec.success_on_termination:
         stats["success_rate"] = float(terminated.mean())
     if tracker is not None:

@@ -42,14 +42,18 @@ weights, a learner consuming replay) models (docs/ARCHITECTURE.md).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from typing import Any
 
 import numpy as np
 
+from tasks.base import StepInterrupted
 from tasks.robot import SOURCE_OPERATOR
 from unilab_jax.algos.imitation import bc
 from unilab_jax.algos.imitation import learner_jax as bc_jax
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,7 +139,12 @@ class HGDagger:
         while len(successes) < episodes and (self._left() is None or self._left() > 0):
             obs = self.novice_obs(critic_obs)
             action = zero if weights is None else bc.act(weights, obs, None)[0]
-            out = task.step(action)
+            try:
+                out = task.step(action)
+            except StepInterrupted as e:  # a lost robot or a protective stop: no transition, every env starts over
+                log.warning("HG-DAgger %s: step interrupted, the episodes in flight are dropped: %s", mode, e)
+                critic_obs, ep_return[:] = e.critic_obs, 0.0
+                continue
             obs_rows.append(obs)
             action_rows.append(out.extras.get("action", action))
             source_rows.append(out.extras["source"])
