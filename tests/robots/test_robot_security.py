@@ -3,22 +3,19 @@ serve flag and request field refused with a message, the owner's latency under a
 
 from __future__ import annotations
 
-import contextlib
 import os
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
 import pytest
 import zmq
+from inprocess_server import thread_server
 
 from unilab_jax.robots import inventory, keys, protocol, serve
 from unilab_jax.robots.client import RobotClient, query
 from unilab_jax.robots.interface import RobotClaimed, RobotDisconnected, RobotEstopped
-from unilab_jax.robots.server import RobotServer, ServerConfig
-from unilab_jax.robots.sim import SimConfig, SimRobot
 
 HOLD = np.array([0.0, 0, 0, 0, 0, 0, -1.0], dtype=np.float32)
 FLOOD = os.path.join(os.path.dirname(__file__), "flood_clients.py")
@@ -38,21 +35,6 @@ def keydir(tmp_path):
 def client_keys(keydir, name: str, folder: str = "allow") -> keys.ClientKeys:
     public, secret = keys.load_pair(str(keydir / folder / f"{name}.key_secret"))
     return keys.ClientKeys(public, secret, keys.load_public(str(keydir / "server.key")))
-
-
-@contextlib.contextmanager
-def thread_server(**server_kw):
-    robot = SimRobot(SimConfig(cameras=(), speed=float("inf"), reset_seconds=0.0))
-    server = RobotServer(robot, ServerConfig(**server_kw))
-    stop = threading.Event()
-    thread = threading.Thread(target=server.serve, args=(stop,), daemon=True)
-    thread.start()
-    try:
-        yield server
-    finally:
-        stop.set()
-        thread.join(10)
-        assert not thread.is_alive()
 
 
 def raw_call(address: str, payload: bytes, keys_: keys.ClientKeys | None = None, timeout_s: float = 2.0):
@@ -88,7 +70,8 @@ def test_keys_cli_makes_lists_and_refuses_to_overwrite(tmp_path, capsys):
 def test_keyed_server_admits_only_allowed_keys_and_only_the_owner_moves_the_robot(keydir, client):
     owner_keys, other_keys = client_keys(keydir, "owner"), client_keys(keydir, "other")
     stranger_keys = client_keys(keydir, "stranger", "elsewhere")
-    with thread_server(key_file=str(keydir / "server.key_secret"), allow_dir=str(keydir / "allow")) as server:
+    with thread_server(float("inf"), 0.0, key_file=str(keydir / "server.key_secret"),
+                       allow_dir=str(keydir / "allow")) as server:
         owner = client(server.address, client_id="trainer", keys=owner_keys, heartbeat_s=0)
         owner.connect()
         owner.reset(seed=0)
@@ -123,7 +106,7 @@ def test_keyed_server_admits_only_allowed_keys_and_only_the_owner_moves_the_robo
 
 
 def test_unkeyed_loopback_server_ties_ownership_to_the_claims_token(client):
-    with thread_server() as server:
+    with thread_server(float("inf"), 0.0) as server:
         owner = client(server.address, client_id="first", heartbeat_s=0)
         owner.connect()
         owner.reset(seed=0)
@@ -169,7 +152,7 @@ def test_network_bind_without_keys_exits_2_without_a_traceback():
 
 
 def test_malformed_request_fields_are_bad_requests():
-    with thread_server() as server:
+    with thread_server(float("inf"), 0.0) as server:
         claim = raw_call(server.address, protocol.request("claim", 1, "c"))
         token = claim["result"]["token"]
         cases = [("claim", {"lease_s": [1]}, ""), ("claim", {"lease_s": "5"}, ""), ("claim", {"lease_s": True}, ""),

@@ -2,40 +2,22 @@
 
 from __future__ import annotations
 
-import contextlib
-import threading
 import time
 
 import numpy as np
 import pytest
 import zmq
+from inprocess_server import thread_server
 
 from unilab_jax.robots import protocol
 from unilab_jax.robots.client import RobotClient, query
 from unilab_jax.robots.experts import make_expert
 from unilab_jax.robots.interface import RobotClaimed, RobotDisconnected
-from unilab_jax.robots.server import FaultConfig, RobotServer, ServerConfig
-from unilab_jax.robots.sim import SimConfig, SimRobot
+from unilab_jax.robots.server import FaultConfig
 
 HOLD = np.array([0.0, 0, 0, 0, 0, 0, -1.0], dtype=np.float32)
 MOVE = np.array([0.0, 1.0, -1.0, 0, 0, 0.5, 1.0], dtype=np.float32)
 FAST = ("--speed=20", "--reset_s=0.1", "--cameras=none")
-
-
-@contextlib.contextmanager
-def thread_server(**server_kw):
-    """A server on a free port in a thread of this process (speed 20, no cameras)."""
-    robot = SimRobot(SimConfig(cameras=(), speed=20.0, reset_seconds=0.1))
-    server = RobotServer(robot, ServerConfig(**server_kw))
-    stop = threading.Event()
-    thread = threading.Thread(target=server.serve, args=(stop,), daemon=True)
-    thread.start()
-    try:
-        yield server
-    finally:
-        stop.set()
-        thread.join(10)
-        assert not thread.is_alive()
 
 
 def _raw_call(address: str, payload: bytes, timeout_s: float = 5.0) -> dict:
