@@ -5,20 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_go1_rough import CLEAN, _deepest_contact
 
 import tasks
 from tasks import terrain
-
-CLEAN = {"noise_level": 0.0, "domain_randomization": False}
-
-
-def _deepest_contact(task) -> float:
-    deepest = 0.0
-    for i in range(task.num_envs):
-        _, data = task.render_scene(i)
-        if data.ncon:
-            deepest = min(deepest, float(data.contact.dist[: data.ncon].min()))
-    return deepest
 
 
 @pytest.mark.parametrize("name", ["go2_joystick_rough", "g1_walk_rough"])
