@@ -19,7 +19,6 @@ update's minibatch is one device-side gather of sampled row indices.
   the windows (with replacement), drawn AND gathered on the device in one jitted call: the host sends the
   windows (two numbers per worker) and one seed taken from the caller's numpy generator, so a seeded run
   draws reproducibly, and no index array crosses to the device. In halves: ``draw`` (host values) and ``take``.
-* ``gather(index)``: ``{field: data[field][index]}`` on the device for host-chosen indices, one jitted call.
 
 Uploads are padded to a power-of-two number of rows (padding rows index past the end and are dropped)
 so the donated scatter compiles for a handful of sizes only. Memory: the rings' size once more on the
@@ -27,7 +26,7 @@ device (2M Go1 transitions: ~2.9 GB).
 
 With a data-parallel learner (``parallel``, a :class:`~unilab_jax.training.sharding.DataParallel`, ``--devices`` > 1)
 the mirror is replicated on every device of the mesh (each new row is uploaded to each device; memory the
-rings' size per device) and ``gather`` returns the minibatch split along B, as the sharded update takes it:
+rings' size per device) and ``take`` returns the minibatch split along B, as the sharded update takes it:
 each device gathers its own columns from its local copy, with no traffic between devices, and the rows
 drawn are exactly those of one device for the same generator.
 """
@@ -46,9 +45,6 @@ MIN_UPLOAD_ROWS = 1024
 
 def _gather_impl(data: dict, index: jax.Array) -> dict:
     return {k: v[index] for k, v in data.items()}
-
-
-_gather = jax.jit(_gather_impl)
 
 
 def _sample_impl(data: dict, lo: jax.Array, sizes: jax.Array, seed: jax.Array, shape: tuple, capacity: int) -> dict:
@@ -81,13 +77,12 @@ class DeviceReplay:
         # 64-bit fields become 32-bit unless jax_enable_x64 (the learner's fields are float32 and bool).
         self.data = {f: jnp.zeros((self._rows, *ring.fields[f][0]), jax.dtypes.canonicalize_dtype(ring.fields[f][1]))
                      for f in self.fields}
-        self._scatter, self._gather, self._sample = _scatter, _gather, _sample
+        self._scatter, self._sample = _scatter, _sample
         self._placement = None  # where uploads go (the default device, or every device of the mesh)
         if parallel is not None:
             self._placement = parallel.replicated
             self.data = jax.device_put(self.data, parallel.replicated)
             self._scatter = jax.jit(_scatter_impl, donate_argnums=0, out_shardings=parallel.replicated)
-            self._gather = jax.jit(_gather_impl, out_shardings=parallel.batch_sharding)
             self._sample = jax.jit(_sample_impl, static_argnums=(4, 5), out_shardings=parallel.batch_sharding)
         self.lo = np.zeros(w, np.int64)  # per worker: global rows [lo, hi) are intact on the device
         self.hi = np.zeros(w, np.int64)  # (hi: the worker's count at the last sync)
@@ -149,7 +144,3 @@ class DeviceReplay:
         """A minibatch ``{field: [*shape, ...]}`` drawn uniformly over the intact rows of every worker, on the device
         (``draw`` then ``take``: the same generator state draws the same rows)."""
         return self.take(self.draw(shape, rng))
-
-    def gather(self, index: np.ndarray) -> dict[str, jax.Array]:
-        """``{field: rows[index]}`` on the device; ``index`` of any shape (e.g. [U, B])."""
-        return self._gather(self.data, jnp.asarray(index))
