@@ -42,15 +42,15 @@ def _mm(a: Any, b: Any, out_dtype: Any) -> Any:
     return jnp.matmul(a, b, preferred_element_type=out_dtype)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
-def matmul(a: Any, b: Any, out_dtype: Any = F32) -> Any:
-    return _mm(a.astype(BF16), b.astype(BF16), out_dtype)
-
-
 def _matmul_fwd(a: Any, b: Any, out_dtype: Any) -> tuple[Any, tuple]:
     a16, b16 = a.astype(BF16), b.astype(BF16)
     # the empty array carries a's dtype to the backward pass (residuals must be arrays)
     return _mm(a16, b16, out_dtype), (a16, b16, jnp.zeros((0,), a.dtype))
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def matmul(a: Any, b: Any, out_dtype: Any = F32) -> Any:
+    return _matmul_fwd(a, b, out_dtype)[0]
 
 
 def _matmul_bwd(out_dtype: Any, res: tuple, g: Any) -> tuple[Any, Any]:
@@ -71,17 +71,15 @@ def _stats(x: Any) -> tuple[Any, Any]:
     return mu, jax.lax.rsqrt(var + EPS)
 
 
-@jax.custom_vjp
-def layer_norm_relu(h: Any, b: Any, g: Any, o: Any) -> Any:
-    x = h.astype(F32) + b
-    mu, rstd = _stats(x)
-    return jax.nn.relu((x - mu) * rstd * g + o).astype(BF16)
-
-
 def _ln_fwd(h: Any, b: Any, g: Any, o: Any) -> tuple[Any, tuple]:
     x = h.astype(F32) + b
     mu, rstd = _stats(x)
     return jax.nn.relu((x - mu) * rstd * g + o).astype(BF16), (h, b, g, o, mu, rstd)
+
+
+@jax.custom_vjp
+def layer_norm_relu(h: Any, b: Any, g: Any, o: Any) -> Any:
+    return _ln_fwd(h, b, g, o)[0]
 
 
 def _ln_bwd(res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
