@@ -1,13 +1,15 @@
 """The trainer's threads: the learner thread (every learner call, so a stop never waits long for a compile
-or an update), the prefetch thread (the next batch collected, sampled and moved to the device while the
-update runs), and the SIGINT / SIGTERM handling that stops a run."""
+or an update) and the pipeline that queues the updates on it, the prefetch thread (the next batch collected,
+sampled and moved to the device while the update runs), and the SIGINT / SIGTERM handling that stops a run."""
 
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import signal
 import threading
+import time
 import weakref
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -200,3 +202,77 @@ class Prefetcher:
     def join(self) -> None:
         if self._thread is not None:
             self._thread.join(timeout=10)
+
+
+class UpdatePipeline:
+    """The learner's state and its updates, queued on a :class:`LearnerThread` up to ``depth`` calls ahead.
+
+    ``submit(batch)`` queues one update of the newest state and returns at once; ``result(stop, grace_s)``
+    waits for the oldest queued call and returns its scalars (floats: the learner thread waits for the update),
+    the seconds the update took on that thread, and the new weights on the host (``weights(state)``) when every
+    scalar is finite, else None. With ``depth`` 2 the loop queues call k+1 before it reads call k's results, so
+    the device never waits for the loop's host work between calls (logging, publishing weights, counting);
+    the loop then sees a call's results one call late and publishes the weights of the call it reads. Depth 1
+    (serial runs) is one call at a time, as a plain loop. ``drain`` waits for every queued call (before an
+    evaluation or a checkpoint reads ``state``); ``cancel`` drops the queued calls that have not started and
+    returns the state the loop may save (a call already running finishes in the background, its result dropped).
+    """
+
+    def __init__(self, thread: LearnerThread, update: Callable[[Any, Any], tuple[Any, dict[str, float]]],
+                 weights: Callable[[Any], Any], state: Any, depth: int):
+        if depth < 1:
+            raise ValueError(f"UpdatePipeline: depth must be >= 1, got {depth}")
+        self._thread, self._update, self._weights, self.depth = thread, update, weights, depth
+        self._state = state
+        self._lock = threading.Lock()
+        self._cancelled = False
+        self._queued: list[Future] = []
+
+    @property
+    def state(self) -> Any:
+        """The newest state; read it after ``drain`` (a queued call may otherwise replace or donate it)."""
+        with self._lock:
+            return self._state
+
+    @property
+    def full(self) -> bool:
+        """Whether ``depth`` calls are queued, so the oldest must be read before another is submitted."""
+        return len(self._queued) >= self.depth
+
+    @property
+    def pending(self) -> int:
+        return len(self._queued)
+
+    def _run(self, batch: Any) -> tuple[dict[str, float], float, Any]:
+        with self._lock:
+            if self._cancelled:
+                return {}, 0.0, None
+            state = self._state
+        t0 = time.perf_counter()
+        state, scalars = self._update(state, batch)
+        seconds = time.perf_counter() - t0
+        finite = all(math.isfinite(v) for v in scalars.values())
+        host = self._weights(state) if finite else None
+        with self._lock:
+            if not self._cancelled:
+                self._state = state
+        return scalars, seconds, host
+
+    def submit(self, batch: Any) -> None:
+        self._queued.append(self._thread.submit(self._run, batch))
+
+    def result(self, stop: threading.Event, grace_s: float = 0.0) -> tuple[dict[str, float], float, Any]:
+        """The oldest queued call's (scalars, update seconds, host weights or None); :class:`StopRequested`
+        once ``stop`` is set (after ``grace_s`` more seconds without a result)."""
+        return wait_result(self._queued.pop(0), stop, grace_s)
+
+    def drain(self, stop: threading.Event, grace_s: float = 0.0) -> list[tuple[dict[str, float], float, Any]]:
+        """Every queued call's results, oldest first."""
+        return [self.result(stop, grace_s) for _ in range(len(self._queued))]
+
+    def cancel(self) -> Any:
+        """Drops the calls not yet started; returns the state of the last call that finished."""
+        with self._lock:
+            self._cancelled = True
+            self._queued.clear()
+            return self._state

@@ -54,7 +54,7 @@ from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
 from unilab_jax.training.evaluation import AsyncEvaluator, ClipRecorder, deterministic_policy, run_episodes
 from unilab_jax.training.profiling import ProfileWindow
 from unilab_jax.training.sources import DeferredBatch, ReplaySource, TrajectorySource
-from unilab_jax.training.threads import LearnerThread, Prefetcher, stop_on_signals
+from unilab_jax.training.threads import LearnerThread, Prefetcher, UpdatePipeline, stop_on_signals
 from unilab_jax.xp import tree_leaves
 
 log = logging.getLogger(__name__)
@@ -325,6 +325,7 @@ class Trainer:
         interrupted = False
         diverged: LearningDiverged | None = None
         prefetch: Prefetcher | None = None
+        pipe: UpdatePipeline | None = None
         source: ReplaySource | TrajectorySource | None = None
         progress = ProgressBar(run.total_steps, counters["env_steps"])
         profile = ProfileWindow(run)
@@ -338,13 +339,20 @@ class Trainer:
                       if replay else TrajectorySource(pool, self.batch_xp, self.spec.reward_terms))
             pool.publish(weights, counters["version"])
             prefetch = Prefetcher(source.produce, inline=run.serial)
+            # Off-policy runs queue the next call before this one's results are read, so the device never waits
+            # for the loop's host work (threads.UpdatePipeline); replay batches need no new weights. Trajectory
+            # batches are collected with the newest weights, and serial runs are one deterministic sequence:
+            # one call at a time.
+            pipe = UpdatePipeline(learner, self._update, self._numpy_weights, state,
+                                  depth=2 if replay and not run.serial else 1)
+            queued: list[tuple[dict, float]] = []  # each queued call's batch stats and prefetch wait
             t_last, steps_last = time.time(), counters["env_steps"]
-            while counters["env_steps"] < run.total_steps and not stop.is_set():
-                profile.step(counters["updates"])
-                t_wait = time.perf_counter()
-                batch, stats = prefetch.get(stop)
-                t_update = time.perf_counter()
-                state, scalars = learner.call(stop, self._update, state, batch, grace_s=self._STOP_GRACE_S)
+
+            def finish() -> None:
+                """Reads the oldest queued call's results: counts, checks, publishes and logs them."""
+                nonlocal t_last, steps_last
+                scalars, update_s, host = pipe.result(stop, self._STOP_GRACE_S)
+                stats, wait_s = queued.pop(0)
                 t_publish = time.perf_counter()
                 counters["updates"] += 1
                 publish = source.advance(counters, stats)
@@ -353,10 +361,9 @@ class Trainer:
                     raise LearningDiverged(bad, counters, ckpt.latest_step())
                 if publish:
                     counters["version"] += 1
-                    host = learner.call(stop, self._numpy_weights, state)
                     (publisher.submit if publisher is not None else pool.publish)(host, counters["version"])
                 now = time.time()
-                scalars.update({"perf/learner_wait_s": t_update - t_wait, "perf/update_s": t_publish - t_update,
+                scalars.update({"perf/learner_wait_s": wait_s, "perf/update_s": update_s,
                                 "perf/publish_s": time.perf_counter() - t_publish})
                 scalars.update(stats["scalars"])
                 scalars.update(source.pool_scalars())
@@ -368,22 +375,44 @@ class Trainer:
                 t_last, steps_last = now, counters["env_steps"]
                 self.logger.log(counters["env_steps"], scalars)
                 progress.update(counters["env_steps"], scalars.get("episode/return"))
-                if next_eval is not None and counters["env_steps"] >= next_eval:
+
+            while counters["env_steps"] < run.total_steps and not stop.is_set():
+                profile.step(counters["updates"])
+                t_wait = time.perf_counter()
+                batch, stats = prefetch.get(stop)
+                pipe.submit(batch)
+                queued.append((stats, time.perf_counter() - t_wait))
+                if pipe.full:
+                    finish()
+                steps = counters["env_steps"]
+                evaluate = next_eval is not None and steps >= next_eval
+                save = next_ckpt is not None and steps >= next_ckpt
+                clip = clips is not None and clips.due(steps)
+                if not (evaluate or save or clip):
+                    continue
+                while queued:  # the state they read is the newest one, its counters counted
+                    finish()
+                state = pipe.state
+                if evaluate:
                     evaluator.submit(learner.call(stop, self._numpy_weights, state), dict(counters),
                                      time.time() - t_start)
                     evaluated_at = counters["env_steps"]
                     next_eval += run.eval_every
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
-                if clips is not None and clips.due(counters["env_steps"]):
+                if clip:
                     clips.submit(learner.call(stop, self._numpy_weights, state), counters["env_steps"])
-                if next_ckpt is not None and counters["env_steps"] >= next_ckpt:
+                if save:
                     ckpt.save(counters["env_steps"], state, self._meta(counters, source))
                     next_ckpt += run.checkpoint_every
+            while queued and not stop.is_set():
+                finish()
         except (KeyboardInterrupt, StopRequested):
             interrupted = True
         except LearningDiverged as e:
             diverged = e
         finally:
+            if pipe is not None:
+                state = pipe.cancel()
             progress.close()
             profile.close()
             if prefetch is not None:
