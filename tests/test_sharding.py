@@ -1,7 +1,6 @@
 """Data-parallel learners (``unilab_jax/training/sharding.py``): on 2 emulated CPU devices the sharded update equals the
 single-device one (same state, batches and key) within float tolerance, and every device holds the same copy of the
-state, for FastSAC (its per-device program under shard_map, which SAC and FlashSAC share) and PPO (GSPMD's partition,
-as TD3; TD3 measured 6e-8); the sharded
+state, for FastSAC and PPO (TD3, SAC and FlashSAC share FastSAC's wrapper; TD3 measured 6e-8); the sharded
 device replay mirror draws the same rows as the single-device one; bad ``--devices`` values are refused.
 
 The device count of the CPU backend is fixed when jax starts (``XLA_FLAGS=--xla_force_host_platform_device_count``),
@@ -86,7 +85,7 @@ def _compare(name: str) -> dict:
     moved = max(diff(a, b) for a, b in zip(before, jax.tree_util.tree_leaves(s1))
                 if jax.numpy.issubdtype(a.dtype, jax.numpy.floating))
     metrics = max(diff(m1[k], m2[k]) for k in m1)
-    # Each device's copy of the replicated state (the off-policy learners average their gradients themselves)
+    # Each device's copy of the replicated state
     replicas = max(diff(x.addressable_shards[0].data, x.addressable_shards[1].data) for x in leaves2
                    if hasattr(x, "addressable_shards"))
     return {"state": state, "metrics": metrics, "moved": moved, "replicas": replicas}

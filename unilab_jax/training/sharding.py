@@ -9,13 +9,9 @@ ones' traced in their ``compute_dtype``, so bf16 matmuls stay bf16 here) and com
 * the batch is split along its batch axis, axis 1 of every field (``[U, B, ...]`` replay minibatches:
   B; ``[T, M, ...]`` trajectories: M, the environments), so each device holds ``1/N`` of it;
 * parameters, optimizer state, normalizers and the RNG key are replicated;
-* the program: a learner that writes its update per device (:class:`PerDeviceUpdate`: the off-policy SAC
-  family) runs that under ``jax.shard_map``, each device on its rows, with the all-reduces it names
-  (gradients, metrics); any other learner's single-device program is partitioned by GSPMD, so every
-  reduction over the batch (loss means, normalizer statistics, hence gradients) becomes a per-device partial
-  sum plus an all-reduce that XLA inserts. Either way results equal the single-device update up to the order
-  of float additions. (GSPMD's partition of FastSAC's update ran each device's share 1.2x slower than the
-  single-device program on two H200s: docs/perf/learner_scaling.md.)
+* the program is the single-device one: GSPMD partitions it, so every reduction over the batch (loss
+  means, normalizer statistics, hence gradients) becomes a per-device partial sum plus an all-reduce
+  that XLA inserts. Results equal the single-device update up to the order of float additions.
 
 No ``pmap`` and no per-device state copies: one global array per leaf, placed with ``jax.device_put``
 (``jax.device_put_replicated`` / ``device_put_sharded`` are gone in jax 0.11). One device is not wrapped
@@ -24,8 +20,7 @@ at all (:func:`make`), so ``--devices=1`` is exactly the single-device path.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import jax
 import numpy as np
@@ -67,15 +62,6 @@ def check_batch(n_devices: int, batch_axis: int, what: str) -> None:
         raise ValueError(f"--devices={n_devices}: {what} ({batch_axis}) must be divisible by the number of devices")
 
 
-@runtime_checkable
-class PerDeviceUpdate(Protocol):
-    """A learner that writes its update per device (the off-policy SAC family): ``per_device_update(axis, n)``
-    is the function each of ``n`` devices runs under ``jax.shard_map`` on its rows of the batch, averaging
-    what must be averaged over ``axis`` itself (gradients, metrics) and returning replicated state."""
-
-    def per_device_update(self, axis: str, devices: int) -> Callable[[Any, dict], tuple[Any, dict]]: ...
-
-
 class DataParallel:
     """A learner updated data-parallel over ``devices`` (see the module docstring).
 
@@ -90,14 +76,7 @@ class DataParallel:
         self.mesh = Mesh(np.asarray(devices), (AXIS,))
         self.replicated = NamedSharding(self.mesh, P())
         self.batch_sharding = NamedSharding(self.mesh, P(None, AXIS))
-        if isinstance(learner, PerDeviceUpdate):  # each device runs the learner's own per-device program
-            # check_vma off: no collective is inserted for the learner; it averages its gradients itself
-            # (tests/test_sharding.py checks that the devices' replicas stay equal).
-            fn = jax.shard_map(learner.per_device_update(AXIS, self.mesh.size), mesh=self.mesh,
-                               in_specs=(P(), P(None, AXIS)), out_specs=(P(), P()), check_vma=False)
-        else:  # the single-device program, partitioned by GSPMD
-            fn = learner.traced_update
-        self._update = jax.jit(fn, in_shardings=(self.replicated, self.batch_sharding),
+        self._update = jax.jit(learner.traced_update, in_shardings=(self.replicated, self.batch_sharding),
                                out_shardings=self.replicated, donate_argnums=donate_argnums)
 
     @property

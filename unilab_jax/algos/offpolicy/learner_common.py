@@ -87,10 +87,6 @@ def prepare_batch(batch: dict, fields: tuple[str, ...] = BATCH_FIELDS) -> dict:
 ACTOR_METRICS = ("actor_loss", "entropy", "policy_std", "alpha_loss", "actor_grad_norm")
 
 
-# The batch fields the once-per-call normalizer step reads (first minibatch only).
-NORMALIZER_FIELDS = ("obs", "critic_obs", "reward")
-
-
 def update_obs_stats(obs_norm: normalizer.RunningStats, critic_norm: normalizer.RunningStats, batch: dict,
                      enabled: bool) -> tuple[normalizer.RunningStats, normalizer.RunningStats]:
     """Normalizer statistics moved once per call, by the first of the U minibatches."""

@@ -31,7 +31,7 @@ float32 program.
 from __future__ import annotations
 
 from types import ModuleType
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -58,41 +58,6 @@ def _zeros_like_metrics(actor_step: Any, *operands: Any) -> dict:
 # How the JAX learners take gradients and apply updates (the steps' order is learner_common's).
 OPS = common.Ops(value_and_grad=jax.value_and_grad, apply_updates=optax.apply_updates, global_norm=optax.tree.norm,
                  cond=jax.lax.cond, skip_metrics=_zeros_like_metrics)
-
-
-class Shard(NamedTuple):
-    """Where one device's update runs in a data-parallel update (``per_device_update``): the mesh axis and the
-    number of devices along it."""
-
-    axis: str
-    devices: int
-
-    def ops(self) -> common.Ops:
-        """``OPS`` whose gradients (and loss values) are averaged over the devices: the local batch's mean loss
-        has the gradient of the whole batch's mean loss once averaged, so every device applies the same update
-        to its replica of the parameters."""
-        axis = self.axis
-
-        def value_and_grad(fn: Any, has_aux: bool = False) -> Any:
-            local = jax.value_and_grad(fn, has_aux=has_aux)
-
-            def averaged(*args: Any) -> tuple[Any, Any]:
-                value, grads = local(*args)
-                value = (jax.lax.pmean(value[0], axis), value[1]) if has_aux else jax.lax.pmean(value, axis)
-                return value, jax.lax.pmean(grads, axis)
-            return averaged
-
-        return OPS._replace(value_and_grad=value_and_grad)
-
-    def local_rows(self, draw: jax.Array, rows: int, batch_axis: int = 0) -> jax.Array:
-        """This device's ``rows`` of a draw made for every device's rows (along ``batch_axis``), so the devices
-        draw what one device would for the whole batch."""
-        return jax.lax.dynamic_slice_in_dim(draw, jax.lax.axis_index(self.axis) * rows, rows, batch_axis)
-
-    def first_minibatch(self, batch: dict, fields: tuple[str, ...]) -> dict:
-        """The whole batch's first minibatch ``[1, B * devices, ...]`` of ``fields`` on every device (the
-        normalizer step reads it), gathered in device order."""
-        return {k: jax.lax.all_gather(batch[k][:1], self.axis, axis=1, tiled=True) for k in fields if k in batch}
 
 
 def _key_words(key: jax.Array) -> np.ndarray:
@@ -140,44 +105,24 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
         self.unroll_steps = bool(self.image_shape) and jax.default_backend() == "cpu"
         self._compile(compiler_options)
 
-    def per_device_update(self, axis: str, devices: int) -> Any:
-        """The update as each of ``devices`` runs it on its rows of the batch under ``jax.shard_map`` over
-        ``axis`` (``training.sharding``): gradients and loss values averaged over the devices (one all-reduce
-        per network and step), the normalizer step on the whole first minibatch (gathered), each device's rows
-        of draws made for the whole batch, metrics averaged. The result equals the single-device update up to
-        the order of float additions."""
-        shard = Shard(axis, devices)
-
-        def update(state: SACState, batch: dict) -> tuple[SACState, dict]:
-            with XP.compute_dtype(self.compute_dtype):
-                state, metrics = self._update(state, batch, shard)
-            return state, jax.lax.pmean(metrics, axis)
-        return update
-
-    def _update(self, state: SACState, batch: dict, shard: Shard | None = None) -> tuple[SACState, dict]:
+    def _update(self, state: SACState, batch: dict) -> tuple[SACState, dict]:
         self.trace_count += 1
         batch = common.prepare_batch(batch, self.batch_fields)
-        ops, devices = (OPS, 1) if shard is None else (shard.ops(), shard.devices)
-        state, norms = self.normalize(state, batch if shard is None else
-                                      shard.first_minibatch(batch, common.NORMALIZER_FIELDS))
-
-        def draw(sample: Any, key: jax.Array, rows: int, batch_axis: int = 0) -> jax.Array:
-            out = sample(key, rows * devices)  # this device's rows of the whole batch's draw
-            return out if shard is None else shard.local_rows(out, rows, batch_axis)
+        state, norms = self.normalize(state, batch)
 
         def step(st: SACState, xs: tuple) -> tuple[SACState, dict]:
             mb, key = xs
             keys = jax.random.split(key, self.step_keys)
-            rows = mb["action"].shape[0]
-            normal = lambda k, n: jax.random.normal(k, (n, self.noise_dim), jnp.float32)  # noqa: E731
-            eps_next, eps = draw(normal, keys[0], rows), draw(normal, keys[1], rows)
+            shape = (mb["action"].shape[0], self.noise_dim)
+            eps_next = jax.random.normal(keys[0], shape, jnp.float32)
+            eps = jax.random.normal(keys[1], shape, jnp.float32)
             if self.critic_noise_shape is not None:
                 eps_next = (eps_next, jax.random.uniform(keys[2], self.critic_noise_shape, jnp.float32))
             if self.image_shape:
-                mb = self.augment({**mb, image_obs.SHIFT: draw(self.draw_shifts, keys[-1], rows, 1)})
+                mb = self.augment({**mb, image_obs.SHIFT: self.draw_shifts(keys[-1], shape[0])})
             # The actor and the temperature move on every actor_every-th step (lax.cond; always when it is 1).
             do_actor = True if self.actor_every == 1 else (st.steps + 1) % self.actor_every == 0
-            nets, metrics = common.sac_step(self, ops, common.sac_nets(st), norms, mb, eps_next, eps, do_actor)
+            nets, metrics = common.sac_step(self, OPS, common.sac_nets(st), norms, mb, eps_next, eps, do_actor)
             return st._replace(**nets._asdict()), metrics
 
         n = batch["reward"].shape[0]
