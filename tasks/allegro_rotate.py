@@ -25,7 +25,9 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   pushed it off the palm. The targets start at the reset pose, the index / middle / ring medial and distal
   ones ``reset_press`` rad past it (ours: the fingers press on the object's top edge from the first step).
   The palm's contacts use its own low friction (0.2, ``PALM_FRICTION``; the fingers' use the object's), so
-  the fingers can turn an object that rests on it.
+  the fingers can turn an object that rests on it. With ``grasp_cache`` an episode starts instead from a
+  cached grasp (``tasks/allegro_grasps.py``: hand joints, the targets that hold the object, and the object),
+  HORA's start; the grasps press the object onto the palm with two or more fingers.
 * Objects, drawn per episode (each env simulates its own ``MjModel`` copy, whose object fields are
   rewritten at its reset; nothing is recompiled): shape uniform over ``config.shapes``; size scale
   U(0.85, 1.1) of the nominal cylinder (radius 0.03, half-height 0.025) / box (half-sides 0.026, 0.026,
@@ -54,15 +56,15 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   them PPO settles on a still hand; docs/RESULTS.md "In-hand rotation (Allegro)").
 * Termination (fall): object centre below the palm surface or more than 0.09 m (horizontally) from the
   palm centre. Time limit 400 steps (truncation).
-* Evaluation metrics (``eval_tracker()`` -> ``RotationTracker``, the trainer's ``eval/*``):
-  ``rotation_rate`` (mean object angular velocity about z over the alive steps of each env's first
-  episode, rad/s, unclipped) and ``time_to_fall`` (mean fraction of the episode before a fall; 1 without
-  one), plus ``rotate_reward`` (mean per-step rotation reward term).
+* Evaluation metrics (``eval_tracker()`` -> ``tasks.allegro_metric.RotationTracker``, the trainer's
+  ``eval/*``): ``rotation_rate`` (mean object angular velocity about z over the alive steps of each env's first
+  episode, rad/s, unclipped) and its standard error over the episodes, ``time_to_fall`` (mean fraction of
+  the episode before a fall; 1 without one), plus ``rotate_reward`` (mean per-step rotation reward term).
 
 The observation/reward math is module-level functions written against the shim (``step_math``,
 ``observe``, ``reward_terms``, ``object_fields``), which ``tasks/mjx_allegro.py`` runs on jax arrays.
-Deviations from HORA: the object rests on the palm instead of being held by the fingertips alone (no grasp
-cache to generate; a still hand does not drop it, so rotation, not holding, is what must be learned); the
+Deviations from HORA: the object rests on the palm instead of being held by the fingertips alone (a still
+hand does not drop it, so rotation, not holding, is what must be learned; the grasp cache is an option); the
 fall penalty is ours; so are the object's orientation and velocities in the extrinsics and the privileged
 PPO actor (``object_state_extrinsics``, ``actor_extrinsics``). In the history variant, ``HistoryTask``
 appends the extrinsics read after the auto-reset, so an ended env's ``next_obs`` extrinsics (its object
@@ -78,7 +80,8 @@ import math
 import mujoco
 import numpy as np
 
-from tasks import base
+from tasks import allegro_grasps, base
+from tasks.allegro_metric import RotationTracker
 from tasks.floating_base import quat_mul
 from tasks.model_edits import load_menagerie_spec, sensor_index, set_solver, strip_visuals
 from tasks.physics import BatchedSim
@@ -135,6 +138,9 @@ class AllegroRotateConfig:
     # Added to the reset targets (not the joints) of the index, middle and ring fingers' medial and distal
     # joints (rad): the fingers start pressing on the object's top edge instead of resting at it.
     reset_press: float = 0.0
+    # "": the palm start above; "builtin" or a .npz path: episodes start from a cached grasp (HORA's start,
+    # tasks/allegro_grasps.py), which sets the hand, its targets and the object (reset_press must be 0).
+    grasp_cache: str = ""
     fall_radius: float = 0.09
     # Object randomisation (per episode).
     domain_randomization: bool = True
@@ -169,6 +175,8 @@ def check_config(config: AllegroRotateConfig) -> int:
     shapes = tuple(config.shapes)
     if not shapes or any(s not in SHAPES for s in shapes) or len(set(shapes)) != len(shapes):
         raise ValueError(f"shapes {config.shapes!r}: a non-empty subset of {SHAPES}")
+    if config.grasp_cache and config.reset_press != 0.0:
+        raise ValueError("grasp_cache sets the reset targets (the grasp's): reset_press must be 0")
     return nsub
 
 
@@ -403,46 +411,6 @@ def yaw_quat(yaw):
 # --------------------------------------------------------------------------------------------------
 # The numpy task
 # --------------------------------------------------------------------------------------------------
-class RotationTracker:
-    """The evaluation metric over each env's first episode while a caller steps the task (``step`` /
-    ``result`` like ``walking_metric.WalkingTracker``): ``rotation_rate`` (rad/s, mean object yaw rate over the
-    episode's steps), ``time_to_fall`` (fraction of the episode before a fall, 1 without one),
-    ``rotate_reward`` (mean per-step rotation term). ``stepper``: what ``step`` steps (the task, or a
-    ``<task>_hist`` variant wrapping it); the metric's inputs are read from ``task``."""
-
-    LOGGED = ("rotation_rate", "time_to_fall", "rotate_reward")
-
-    def __init__(self, task, stepper=None):
-        self._task, self._stepper = task, stepper if stepper is not None else task
-        m = task.num_envs
-        self.active = np.ones(m, dtype=bool)
-        self._steps = np.zeros(m)
-        self._fall_at = np.full(m, np.nan)
-        self._angvel = np.zeros(m)
-        self._rotate = np.zeros(m)
-
-    @property
-    def done(self) -> bool:
-        return not self.active.any()
-
-    def step(self, action: np.ndarray) -> base.StepOut:
-        out = self._stepper.step(action)
-        a = self.active
-        self._steps += a
-        self._angvel += np.where(a, self._task.object_angvel_z, 0.0)
-        self._rotate += np.where(a, out.reward_terms["rotate"], 0.0)
-        self._fall_at = np.where(a & out.terminated, self._steps, self._fall_at)
-        self.active = a & ~(out.terminated | out.truncated)
-        return out
-
-    def result(self) -> dict[str, float]:
-        steps = np.maximum(self._steps, 1)
-        limit = self._task.spec.episode_length
-        ttf = np.where(np.isnan(self._fall_at), 1.0, np.nan_to_num(self._fall_at) / limit)
-        return {"rotation_rate": float(np.mean(self._angvel / steps)), "time_to_fall": float(np.mean(ttf)),
-                "rotate_reward": float(np.mean(self._rotate / steps))}
-
-
 class AllegroRotate(base.Task):
     def __init__(self, config: AllegroRotateConfig, num_envs: int, seed: int):
         super().__init__(config, num_envs, seed)
@@ -474,6 +442,7 @@ class AllegroRotate(base.Task):
         self.object_vel = np.zeros((M, 6))  # the object's linear, angular velocity over the last step
         self.steps = np.zeros(M, dtype=np.int64)
         self.unstable_count = 0
+        self.grasps = allegro_grasps.load(c) if c.grasp_cache else None
 
     # ---- object randomisation -------------------------------------------------------------------
     def sample_objects(self, n: int) -> dict[str, np.ndarray]:
@@ -526,18 +495,21 @@ class AllegroRotate(base.Task):
     # ---- reset / step ---------------------------------------------------------------------------
     def _reset_envs(self, idx: np.ndarray) -> None:
         c, r, n = self.config, self._rng, idx.size
-        draws = self.sample_objects(n)
+        if self.grasps is not None:
+            draws = allegro_grasps.draw(self.grasps, r.integers(0, len(self.kinds), size=n), r.random(n))
+            qpos, target = draws["qpos"].astype(np.float64), draws["target"].astype(np.float64)
+        else:
+            draws = self.sample_objects(n)
+            pose = self.consts["canonical"] + r.uniform(-c.reset_pose_noise, c.reset_pose_noise, size=(n, NJ))
+            pose = np.clip(pose, self.lower, self.upper)
+            pos = np.stack([np.full(n, PALM_CENTER[0]), np.full(n, PALM_CENTER[1]), self.rest_height(draws)], axis=1)
+            qpos = np.concatenate([pose, pos, yaw_quat(r.uniform(-math.pi, math.pi, size=n))], axis=1)
+            target = np.clip(pose + press_offset(c.reset_press), self.lower, self.upper)
         self.set_objects(idx, draws)
-        pose = self.consts["canonical"] + r.uniform(-c.reset_pose_noise, c.reset_pose_noise, size=(n, NJ))
-        pose = np.clip(pose, self.lower, self.upper)
-        pos = np.stack([np.full(n, PALM_CENTER[0]), np.full(n, PALM_CENTER[1]), self.rest_height(draws)], axis=1)
-        quat = yaw_quat(r.uniform(-math.pi, math.pi, size=n))
-        qpos = np.concatenate([pose, pos, quat], axis=1)
-        target = np.clip(pose + press_offset(c.reset_press), self.lower, self.upper)
         self.sim.set_state(idx, qpos, np.zeros((n, self.model.nv)), ctrl=target)
         self.info["target"][idx] = target
-        self.info["obj_pos"][idx] = pos
-        self.info["obj_quat"][idx] = quat
+        self.info["obj_pos"][idx] = qpos[:, NJ:NJ + 3]
+        self.info["obj_quat"][idx] = qpos[:, NJ + 3:]
         self.object_vel[idx] = 0.0
         self.steps[idx] = 0
 

@@ -10,8 +10,9 @@ and end-of-step handling are ``tasks/mjx_go1.py``'s task-independent pieces.
 Restriction: MJX has no box-cylinder collision (the hand's links are boxes), so the MJX variant takes
 ``shapes=("box",)`` only and says so for any other config; the CPU task with that override is the same
 MDP (its parity test runs boxes).
-Per-episode objects: the object's model fields (geom size / position / bounds / friction, body mass /
-inertia / centre of mass) live per env in the state and are rewritten for the envs that reset.
+With ``grasp_cache`` the resets draw from the CPU task's grasps (``tasks/allegro_grasps.py``'s ``draw``, the
+boxes of the cache). Per-episode objects: the object's model fields (geom size / position / bounds / friction,
+body mass / inertia / centre of mass) live per env in the state and are rewritten for the envs that reset.
 """
 
 from __future__ import annotations
@@ -25,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from tasks import allegro_grasps, base
 from tasks import allegro_rotate as ar
-from tasks import base
 from tasks.mjx_go1 import MjxStepOut, finish_transition, forward, physics_step, reset_in_batches, restart_episodes
 from tasks.model_edits import sensor_index
 
@@ -83,6 +84,8 @@ class AllegroRotateMjx:
         self.noise_scale = f32(np.r_[np.full(ar.NJ, c.noise_joint_pos), np.full(ar.NJ, c.noise_joint_vel)]
                                * c.noise_level)
         self.scales = ar.reward_scales(c)
+        # The CPU task's grasp cache (``grasp_cache``), as device arrays.
+        self.grasps = (jax.tree_util.tree_map(jnp.asarray, allegro_grasps.load(c)) if c.grasp_cache else None)
         self.spec = base.TaskSpec(
             name=ar.NAME, obs_dim=ar.actor_obs_dim(c), critic_obs_dim=ar.CRITIC_OBS_DIM, action_dim=ar.NJ,
             episode_length=c.episode_length, ctrl_dt=c.ctrl_dt, reward_terms=ar.REWARD_TERMS,
@@ -133,17 +136,24 @@ class AllegroRotateMjx:
         """Fresh episodes for ``fields``' rows: (data after ``mjx.forward``, new fields, params, info)."""
         c, n = self.config, fields["body_mass"].shape[0]
         ks = jax.random.split(key, 3)
-        draws = self.sample_objects(ks[0], n)
+        if self.grasps is not None:  # the CPU task's draw: a shape, then one of its grasps
+            shape = jax.random.randint(ks[0], (n,), 0, len(self.kinds))
+            draws = allegro_grasps.draw(self.grasps, shape, jax.random.uniform(ks[1], (n,), jnp.float32))
+            qpos, target = draws["qpos"], draws["target"]
+        else:
+            draws = self.sample_objects(ks[0], n)
+            noise = jax.random.uniform(ks[1], (n, ar.NJ), jnp.float32, -c.reset_pose_noise, c.reset_pose_noise)
+            pose = jnp.clip(self.consts["canonical"] + noise, self.lower, self.upper)
+            height = ar.PALM_TOP + 0.001 + draws["scale"] * (draws["active"] @ self.half_z)
+            pos = jnp.stack([jnp.full(n, ar.PALM_CENTER[0]), jnp.full(n, ar.PALM_CENTER[1]), height], axis=1)
+            quat = ar.yaw_quat(jax.random.uniform(ks[2], (n,), jnp.float32, -math.pi, math.pi))
+            qpos = jnp.concatenate([pose, pos, quat], axis=1)
+            press = jnp.asarray(ar.press_offset(c.reset_press), jnp.float32)
+            target = jnp.clip(pose + press, self.lower, self.upper)
         fields, params = self.object_model_fields(fields, draws)
-        noise = jax.random.uniform(ks[1], (n, ar.NJ), jnp.float32, -c.reset_pose_noise, c.reset_pose_noise)
-        pose = jnp.clip(self.consts["canonical"] + noise, self.lower, self.upper)
-        height = ar.PALM_TOP + 0.001 + draws["scale"] * (draws["active"] @ self.half_z)
-        pos = jnp.stack([jnp.full(n, ar.PALM_CENTER[0]), jnp.full(n, ar.PALM_CENTER[1]), height], axis=1)
-        quat = ar.yaw_quat(jax.random.uniform(ks[2], (n,), jnp.float32, -math.pi, math.pi))
-        qpos = jnp.concatenate([pose, pos, quat], axis=1)
-        target = jnp.clip(pose + jnp.asarray(ar.press_offset(c.reset_press), jnp.float32), self.lower, self.upper)
         data = forward(self.mjx_model, self._template, fields, qpos, jnp.zeros((n, self.model.nv)), target)
-        return data, fields, params, {"target": target, "obj_pos": pos, "obj_quat": quat}
+        info = {"target": target, "obj_pos": qpos[:, ar.NJ:ar.NJ + 3], "obj_quat": qpos[:, ar.NJ + 3:]}
+        return data, fields, params, info
 
     def _observe(self, data: Any, info: dict, params: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         jp, jv, pos, quat, tau = self._state(data)

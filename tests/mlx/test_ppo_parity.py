@@ -90,6 +90,9 @@ CASES = {
     "ppo-3mb-kl-up-noclip": (False, dict(desired_kl=1.0, learning_rate=1e-4, num_minibatches=3,
                                          value_clip=0.0), True),
     "appo-1mb-own-perm": (True, dict(desired_kl=0.01, learning_rate=1e-2, num_minibatches=1), False),
+    # the schedules a quarter of the way (the warm-up update used T * B of 4 T B steps): rate and std bound
+    "ppo-linear-lr-std-bound": (False, dict(lr_schedule="linear", learning_rate=1e-2, final_learning_rate=1e-3,
+                                            final_std=0.5, schedule_steps=4 * T * B, ent_coef=1.0), True),
 }
 
 
@@ -118,7 +121,9 @@ def test_one_update_matches_jax(case):
     lr_jax = float(js2.opt_state[1].hyperparams["learning_rate"])
     lr_mlx = float(mlx_ppo.learning_rate(ms2.opt_state))
     assert lr_mlx == pytest.approx(lr_jax, rel=1e-5)
-    if config.desired_kl > 0:  # the KL rule moved the rate during this update
+    if config.final_std > 0:  # the entropy bonus pushes the std up to its bound, 1 - 0.5 / 4
+        np.testing.assert_allclose(np.exp(got.params["log_std"]), 0.875, rtol=1e-5)
+    if config.desired_kl > 0:  # the KL rule (or the schedule) moved the rate during this update
         assert lr_mlx != pytest.approx(float(mlx_ppo.learning_rate(ms.opt_state)), rel=1e-3)
     assert int(got.opt_state[1]["count"]) == int(js2.opt_state[1].count)
     assert int(got.updates) == int(js2.updates) == 2

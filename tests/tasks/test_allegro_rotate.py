@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import tasks
+from tasks import allegro_metric
 from tasks import allegro_rotate as ar
 
 DT = 0.05
@@ -102,7 +103,7 @@ def test_simulated_rotation_fall_and_metrics():
     episode with the fall penalty; the tracker's metrics follow."""
     task = tasks.make("allegro_rotate", 2, seed=0, overrides={"noise_level": 0.0})
     task.reset()
-    tracker = ar.RotationTracker(task)
+    tracker = allegro_metric.RotationTracker(task)
     zero = np.zeros((2, 16), np.float32)
     for _ in range(5):
         out = tracker.step(zero)
@@ -201,7 +202,7 @@ def test_history_variant_evaluates_through_the_variant():
     task.reset()
     out = tracker.step(np.zeros((2, 16), np.float32))
     assert out.obs.shape == (2, task.spec.obs_dim) == (2, 3 * 48 + ar.EXTRINSICS_DIM)
-    assert set(tracker.result()) == set(ar.RotationTracker.LOGGED)
+    assert set(tracker.result()) == set(allegro_metric.RotationTracker.LOGGED)
     task.close()
     go1 = tasks.make("go1_joystick_flat_hist", 1, seed=0)
     assert not hasattr(go1, "eval_tracker")  # no tracker of its own: the walking metric applies

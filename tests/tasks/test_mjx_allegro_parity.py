@@ -104,3 +104,20 @@ def test_mjx_matches_cpu_task():
     assert abs(float(new.params[1, 0]) - float(state.params[1, 0])) > 0  # a new object mass was drawn
     press = tasks.allegro_rotate.press_offset(PRESS)
     np.testing.assert_allclose(np.asarray(new.info["target"][1] - new.data.qpos[1, :16]), press, atol=1e-6)
+
+
+def test_mjx_resets_from_the_cpu_tasks_grasp_cache():
+    """With ``grasp_cache`` both engines start episodes from the same file's grasps (the boxes here): each MJX
+    env's joints, object pose, targets and object parameters are one cached grasp's, as the CPU task's are."""
+    overrides = {**OVERRIDES, "grasp_cache": "builtin", "reset_press": 0.0}
+    env = mjx_allegro.make(tasks.allegro_rotate.AllegroRotateConfig(**overrides), M)
+    cpu = tasks.make("allegro_rotate", M, seed=0, overrides=overrides)
+    for k in ("qpos", "target", "mass", "start", "count"):
+        np.testing.assert_array_equal(np.asarray(env.grasps[k]), cpu.grasps[k], err_msg=k)
+    state = jax.jit(env.reset, compiler_options=OPTS)(jax.random.PRNGKey(3))
+    qpos = np.asarray(state.data.qpos)
+    rows = [int(np.argmin(np.abs(cpu.grasps["qpos"] - q).max(axis=1))) for q in qpos]
+    np.testing.assert_allclose(qpos, cpu.grasps["qpos"][rows], atol=1e-7)
+    np.testing.assert_allclose(np.asarray(state.info["target"]), cpu.grasps["target"][rows], atol=1e-7)
+    np.testing.assert_allclose(np.asarray(state.params[:, 0]), cpu.grasps["mass"][rows], rtol=1e-6)
+    cpu.close()

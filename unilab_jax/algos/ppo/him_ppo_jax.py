@@ -51,9 +51,10 @@ class HIMLearner(ppo_jax.Learner):
         est_total, est_metrics = him_ppo.estimator_loss(params["estimator"], obs_norm, critic_norm, mb, self.config)
         return ppo_total + est_total, {**metrics, **est_metrics}
 
-    def apply_gradients(self, params: dict, opt_state: dict, grads: dict, metrics: dict) -> tuple[dict, dict, Any]:
+    def apply_gradients(self, params: dict, opt_state: dict, grads: dict, metrics: dict,
+                        fraction: jax.Array) -> tuple[dict, dict, Any]:
         policy, policy_state, lr = super().apply_gradients(_policy_part(params), opt_state["policy"],
-                                                           _policy_part(grads), metrics)
+                                                           _policy_part(grads), metrics, fraction)
         updates, est_state = self.est_tx.update(grads["estimator"], opt_state["estimator"], params["estimator"])
         est = optax.apply_updates(params["estimator"], updates)
         est = {**est, "prototypes": him.l2_normalize(est["prototypes"])}

@@ -21,9 +21,9 @@ therefore:
 * one compiled function for the targets (values, advantages, returns; evaluated lazily with the
   first step);
 * one compiled minibatch step, a pure function
-  ``(params, opt_state, obs_norm, critic_norm, flat, idx) -> (params, opt_state, metrics)`` (the
-  minibatch gather by ``idx``, value_and_grad of the loss, KL-adaptive learning rate written into
-  the injected hyperparameter before the optimizer update, Adam), traced once and reused;
+  ``(params, opt_state, obs_norm, critic_norm, flat, idx, fraction) -> (params, opt_state, metrics)`` (the
+  minibatch gather by ``idx``, value_and_grad of the loss, KL-adaptive or scheduled learning rate written
+  into the injected hyperparameter before the optimizer update, Adam, the std bound), traced once and reused;
 * a Python loop over epochs and minibatches driving that step, with exactly one ``mx.eval`` per
   step (the state is the explicit input and output, nothing is captured or mutated);
 * the normalizer statistics moved after the PPO steps, and one final ``mx.eval`` of the new state
@@ -50,7 +50,6 @@ from unilab_jax import xp as shim
 from unilab_jax.algos.ppo import ppo
 from unilab_jax.algos.ppo.ppo import TrainState
 from unilab_jax.core import normalizer
-from unilab_jax.core import ppo_losses as ppo_core
 from unilab_jax.fields import TRAJECTORY_FIELDS
 from unilab_mlx import optim
 from unilab_mlx.state import state_from_numpy, state_to_numpy
@@ -121,20 +120,19 @@ class Learner:
         return ppo.loss(params, obs_norm, critic_norm, mb, self.config, asymmetric_clip=self.use_vtrace)
 
     def _step_fn(self, params: dict, opt_state: Any, obs_norm: Any, critic_norm: Any, flat: dict,
-                 idx: mx.array) -> tuple[dict, Any, dict]:
-        """One minibatch step: gather ``flat[idx]``, gradient, KL-adaptive lr, clipped Adam update."""
+                 idx: mx.array, fraction: mx.array) -> tuple[dict, Any, dict]:
+        """One minibatch step: gather ``flat[idx]``, gradient, learning rate (KL rule or schedule at
+        ``fraction``, written into the injected hyperparameter before the update, as in JAX), clipped Adam
+        update, std bound."""
         cfg = self.config
         mb = {k: v[idx] for k, v in flat.items()}
         (_, metrics), grads = XP.value_and_grad(self._loss, has_aux=True)(params, obs_norm, critic_norm, mb)
-        lr = learning_rate(opt_state)
-        if cfg.desired_kl > 0:
-            # rsl_rl rule: adapt from the KL between the collecting policy and the current one,
-            # written into the injected hyperparameter before this step's update (as in JAX).
-            lr = ppo_core.kl_adaptive_lr(lr, metrics["kl"], cfg.desired_kl)
-            opt_state = _with_learning_rate(opt_state, lr)
+        lr = ppo.scheduled_learning_rate(learning_rate(opt_state), metrics["kl"], fraction, cfg)
+        opt_state = _with_learning_rate(opt_state, lr)
         updates, opt_state = self.tx.update(grads, opt_state, params)
-        params = optim.apply_updates(params, updates)
-        metrics = {**metrics, "learning_rate": lr, "grad_norm": optim.global_norm(grads)}
+        params = ppo.clamp_log_std(optim.apply_updates(params, updates), fraction, cfg)
+        metrics = {**metrics, "learning_rate": lr, "grad_norm": optim.global_norm(grads),
+                   "action_std": mx.mean(mx.exp(params["log_std"]))}
         return params, opt_state, metrics
 
     # -- the update ---------------------------------------------------------------------------
@@ -165,13 +163,14 @@ class Learner:
                 raise ValueError(f"perms must be [num_epochs={cfg.num_epochs}, >= {used}], got {perms.shape}")
 
         params, opt_state = state.params, state.opt_state
+        fraction = ppo.schedule_fraction(state.updates, n, cfg)
         step_metrics: list[dict] = []
         for epoch in range(cfg.num_epochs):
             perm = perms[epoch] if perms is not None else mx.random.permutation(n, key=keys[epoch + 1])
             for i in range(cfg.num_minibatches):
                 idx = perm[i * mb_size:(i + 1) * mb_size]
                 params, opt_state, m = self._step(params, opt_state, state.obs_norm, state.critic_norm,
-                                                  flat, idx)
+                                                  flat, idx, fraction)
                 mx.eval(params, opt_state, m)  # one eval per compiled step
                 step_metrics.append(m)
 

@@ -8,6 +8,7 @@ The worker side (``act``) and the loss are written against the shim; the learner
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -46,6 +47,15 @@ class PPOConfig(SelfChecking):
     normalize_advantages: bool = True
     normalize_obs: bool = True
     obs_clip: float = 10.0
+    # Schedules over the first ``schedule_steps`` env steps (counted as updates x samples per update), then held.
+    # lr_schedule: "adaptive" (the KL rule with desired_kl > 0, else learning_rate throughout), "fixed"
+    # (learning_rate throughout, desired_kl unused) or "linear" (learning_rate -> final_learning_rate).
+    lr_schedule: str = "adaptive"
+    final_learning_rate: float = 0.0
+    # > 0: the action std's upper bound falls linearly from exp(init_log_std) to final_std (log_std is clamped
+    # to it after every optimizer step); 0: no bound.
+    final_std: float = 0.0
+    schedule_steps: int = 0
 
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""
@@ -61,7 +71,57 @@ class PPOConfig(SelfChecking):
                             "KL-adaptive learning rate)")
         if self.activation not in nets.ACTIVATIONS:
             problems.append(f"activation must be one of {nets.ACTIVATIONS}, got {self.activation!r}")
+        return problems + self.schedule_problems()
+
+    def schedule_problems(self) -> list[str]:
+        problems = []
+        if self.lr_schedule not in LR_SCHEDULES:
+            problems.append(f"lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        if self.lr_schedule == "linear" and not self.final_learning_rate > 0:
+            problems.append("lr_schedule='linear' needs final_learning_rate > 0")
+        if not 0.0 <= self.final_std <= math.exp(self.init_log_std):
+            problems.append(f"final_std must be 0 (no bound) or in (0, exp(init_log_std) = "
+                            f"{math.exp(self.init_log_std):.3g}], got {self.final_std}")
+        scheduled = self.lr_schedule == "linear" or self.final_std > 0
+        if self.schedule_steps < 0 or (scheduled and self.schedule_steps == 0):
+            problems.append(f"schedule_steps must be positive with lr_schedule='linear' or final_std > 0 "
+                            f"(got {self.schedule_steps})")
         return problems
+
+
+LR_SCHEDULES = ("adaptive", "fixed", "linear")
+
+
+def schedule_fraction(updates: Any, samples_per_update: int, config: PPOConfig) -> Any:
+    """How far the schedules have run before an update: min(env steps so far / schedule_steps, 1) (0 without
+    a schedule). ``updates``: the state's update count (a 0-d integer array)."""
+    xp = shim.namespace(updates)
+    steps = xp.astype(updates, xp.float32) * float(samples_per_update)
+    return xp.minimum(steps / float(max(config.schedule_steps, 1)), xp.ones_like(steps))
+
+
+def scheduled_learning_rate(lr: Any, kl: Any, fraction: Any, config: PPOConfig) -> Any:
+    """The learning rate of one optimizer step: ``lr`` (the current one) moved by the KL rule, or the
+    schedule's value at ``fraction`` (``schedule_fraction``)."""
+    xp = shim.namespace(fraction)
+    if config.lr_schedule == "linear":
+        return config.learning_rate + (config.final_learning_rate - config.learning_rate) * fraction
+    if config.lr_schedule == "fixed":
+        return xp.full_like(fraction, config.learning_rate)
+    if config.desired_kl > 0:
+        # rsl_rl rule: adapt from the KL between the collecting policy and the current one.
+        return ppo.kl_adaptive_lr(lr, kl, config.desired_kl)
+    return lr
+
+
+def clamp_log_std(params: dict, fraction: Any, config: PPOConfig) -> dict:
+    """``params`` with ``log_std`` at most log of the std bound at ``fraction`` (unchanged with final_std 0)."""
+    if config.final_std <= 0:
+        return params
+    xp = shim.namespace(params["log_std"])
+    start = math.exp(config.init_log_std)
+    bound = xp.log(start + (config.final_std - start) * fraction)
+    return {**params, "log_std": xp.minimum(params["log_std"], xp.astype(bound, params["log_std"].dtype))}
 
 
 class TrainState(NamedTuple):

@@ -1,0 +1,115 @@
+"""Allegro in-hand rotation results (issue 37): one record per setting, role and seed in a JSON file.
+
+    python bench/allegro_results.py --out bench/results/h100/phase3/allegro.json --setting base --seed 0 \\
+        --commit abc1234 --run teacher=runs/hora_s0/teacher --run student=runs/hora_s0/student --run ppo=runs/ppo_s0
+    python bench/allegro_results.py --out bench/results/h100/phase3/allegro.json --report
+
+A record (``ROLES``: teacher | student | ppo) is read from the run's logdir: its last evaluation (``summary.json``,
+the trainer's final one) gives ``rotation_rad_s`` (with ``rotation_rad_s_se``, its standard error over the
+episodes, where the run logged it), ``time_to_fall`` (fraction of the episode), ``rotate_reward`` (mean
+per-step rotation term) and ``eval_episodes``; ``env_steps``, ``wall_s`` and ``interrupted`` (stopped by a signal or
+time limit before its step budget) are the run's; ``curve`` lists every
+evaluation as [env steps, rotation rate, time to fall]. A record replaces the file's record of the same
+(setting, role, seed). ``--report`` prints, per setting and role, the mean over seeds against the goal
+(teacher >= 0.2 rad/s with time to fall >= 0.8; student >= 0.8 of its teacher's rate).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+ROLES = ("teacher", "student", "ppo")
+GOAL_RATE, GOAL_TTF, GOAL_STUDENT = 0.2, 0.8, 0.8
+
+
+def read_run(logdir: str) -> dict:
+    """The record's measured fields from a run's ``summary.json`` and ``metrics.jsonl``."""
+    with open(os.path.join(logdir, "summary.json")) as f:
+        summary = json.load(f)
+    if "eval/rotation_rate" not in summary:
+        raise ValueError(f"{logdir}: summary.json has no final evaluation (eval/rotation_rate)")
+    curve = []
+    with open(os.path.join(logdir, "metrics.jsonl")) as f:
+        for line in f:
+            row = json.loads(line)
+            if "eval/rotation_rate" in row:
+                curve.append([row["step"], row["eval/rotation_rate"], row["eval/time_to_fall"]])
+    return {"rotation_rad_s": summary["eval/rotation_rate"],
+            "rotation_rad_s_se": summary.get("eval/rotation_rate_se"),
+            "time_to_fall": summary["eval/time_to_fall"], "rotate_reward": summary["eval/rotate_reward"],
+            "eval_episodes": summary.get("eval/episodes"), "env_steps": summary["env_steps"],
+            "wall_s": summary["wall_s"], "interrupted": summary.get("interrupted"), "curve": curve}
+
+
+def merge(records: list[dict], new: list[dict]) -> list[dict]:
+    """``records`` with each of ``new`` replacing the one of the same (setting, role, seed), in a stable order."""
+    key = lambda r: (r["setting"], r["role"], r["seed"])
+    out = {key(r): r for r in records}
+    out.update({key(r): r for r in new})
+    return sorted(out.values(), key=lambda r: (r["setting"], ROLES.index(r["role"]), r["seed"]))
+
+
+def report(records: list[dict]) -> list[str]:
+    """One line per (setting, role): seeds, mean rate, time to fall, and the goal's verdict."""
+    lines, groups = [], {}
+    for r in records:
+        groups.setdefault((r["setting"], r["role"]), []).append(r)
+    mean = lambda rs, k: sum(r[k] for r in rs) / len(rs)
+    for (setting, role), rs in groups.items():
+        rate, ttf = mean(rs, "rotation_rad_s"), mean(rs, "time_to_fall")
+        if role == "student" and (setting, "teacher") in groups:
+            teacher = mean(groups[(setting, "teacher")], "rotation_rad_s")
+            verdict = f"{rate / teacher:.2f}x the teacher (goal >= {GOAL_STUDENT})" if teacher else "teacher at 0"
+        else:
+            met = rate >= GOAL_RATE and ttf >= GOAL_TTF
+            verdict = f"goal {'met' if met else 'missed'} (>= {GOAL_RATE} rad/s, time to fall >= {GOAL_TTF})"
+        rates = ", ".join(f"{r['rotation_rad_s']:.3f}" for r in rs)
+        lines.append(f"{setting:16s} {role:8s} seeds {len(rs)}: rate {rate:.3f} rad/s ({rates}), time to fall "
+                     f"{ttf:.2f}, {mean(rs, 'env_steps') / 1e6:.1f}M steps, {mean(rs, 'wall_s'):.0f} s; {verdict}")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", required=True, help="the results JSON (created if absent)")
+    parser.add_argument("--run", action="append", default=[], help="ROLE=LOGDIR (ROLE: teacher, student, ppo)")
+    parser.add_argument("--setting", default="base", help="the name of the settings the runs used")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--commit", default="unknown")
+    parser.add_argument("--machine", default="H100 + 16 cores")
+    parser.add_argument("--command", default="", help="the command the runs were made with")
+    parser.add_argument("--report", action="store_true", help="print the file's table")
+    args = parser.parse_args(argv)
+    records = []
+    if os.path.isfile(args.out):
+        with open(args.out) as f:
+            records = json.load(f)["records"]
+    new = []
+    for item in args.run:
+        role, _, logdir = item.partition("=")
+        if role not in ROLES or not logdir:
+            print(f"error: --run {item!r}: expected ROLE=LOGDIR with ROLE one of {ROLES}", file=sys.stderr)
+            return 2
+        try:
+            measured = read_run(logdir)
+        except (OSError, ValueError, KeyError) as e:
+            print(f"error: --run {item!r}: {e}", file=sys.stderr)
+            return 2
+        new.append({"setting": args.setting, "role": role, "seed": args.seed, **measured, "commit": args.commit,
+                    "machine": args.machine, "command": args.command})
+    if new:
+        records = merge(records, new)
+        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+        with open(args.out, "w") as f:
+            json.dump({"records": records}, f, indent=1)
+        print(f"{len(new)} record(s) -> {args.out}")
+    if args.report:
+        print("\n".join(report(records)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,51 @@
+"""bench/allegro_results.py: records read from run logdirs, one per (setting, role, seed) (a rerun replaces its
+record), the report's means and goal verdicts, and bad --run arguments refused with exit 2."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+_spec = importlib.util.spec_from_file_location("allegro_results", os.path.join(ROOT, "bench", "allegro_results.py"))
+ar = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ar)
+
+
+def _run(path, rates, ttf=0.9, steps=4_000_000):
+    """A logdir with evaluations at ``rates`` (the last one the summary's)."""
+    os.makedirs(path)
+    with open(os.path.join(path, "metrics.jsonl"), "w") as f:
+        f.write(json.dumps({"step": 10, "loss/x": 1.0}) + "\n")
+        for i, r in enumerate(rates):
+            f.write(json.dumps({"step": (i + 1) * 1000, "eval/rotation_rate": r, "eval/time_to_fall": ttf}) + "\n")
+    with open(os.path.join(path, "summary.json"), "w") as f:
+        json.dump({"env_steps": steps, "wall_s": 400.0, "interrupted": False, "eval/rotation_rate": rates[-1],
+                   "eval/rotation_rate_se": 0.01, "eval/time_to_fall": ttf, "eval/rotate_reward": rates[-1] / 2,
+                   "eval/episodes": 128.0}, f)
+    return str(path)
+
+
+def test_records_replace_by_setting_role_seed_and_report_the_goal(tmp_path, capsys):
+    out = str(tmp_path / "allegro.json")
+    teacher = [_run(tmp_path / f"t{s}", [0.05, 0.2 + 0.02 * s]) for s in range(3)]
+    student = [_run(tmp_path / f"s{s}", [0.18], ttf=0.7, steps=1_000_000) for s in range(3)]
+    for s in range(3):
+        assert ar.main(["--out", out, "--setting", "std", "--seed", str(s), "--commit", "abc",
+                        "--run", f"teacher={teacher[s]}", "--run", f"student={student[s]}"]) == 0
+    again = _run(tmp_path / "t0b", [0.26])  # seed 0's teacher rerun: its record replaced, not added
+    assert ar.main(["--out", out, "--setting", "std", "--seed", "0", "--run", f"teacher={again}"]) == 0
+    records = json.load(open(out))["records"]
+    assert [(r["role"], r["seed"]) for r in records] == [("teacher", 0), ("teacher", 1), ("teacher", 2),
+                                                         ("student", 0), ("student", 1), ("student", 2)]
+    t0 = records[0]
+    assert t0["rotation_rad_s"] == 0.26 and t0["curve"] == [[1000, 0.26, 0.9]] and t0["commit"] == "unknown"
+    assert records[1]["curve"] == [[1000, 0.05, 0.9], [2000, 0.22, 0.9]] and records[1]["eval_episodes"] == 128.0
+    lines = ar.report(records)
+    assert "teacher  seeds 3: rate 0.240" in lines[0] and "goal met" in lines[0]  # (0.26 + 0.22 + 0.24) / 3
+    assert "0.75x the teacher" in lines[1]  # 0.18 / 0.24
+    capsys.readouterr()
+    assert ar.main(["--out", out, "--run", "critic=" + teacher[0]]) == 2
+    assert ar.main(["--out", out, "--run", "ppo=" + str(tmp_path / "missing")]) == 2
+    assert "ROLE=LOGDIR" in capsys.readouterr().err
