@@ -92,14 +92,22 @@ CONFIGS: dict[str, dict[str, Any]] = {
                    "flags": ["--utd_mode=free"]},
     # rough terrain (docs/TERRAIN.md): walking is the rough-terrain criterion, judged on the evaluation's upper-half
     # terrain levels (``metrics.WALKING.met_on_rough``); the records also hold the mean terrain level's maximum
+    # (records add "robot", "algo" and "time_to_walking_rough_s": issue 33's terrain.json)
     "go1_rough_ppo": {"kind": "heterogeneous", "sync": "lockstep", "script": "experiments/ppo_go1_rough.py",
-                      "eval_every": 4_000_000, "eval_envs": 64, "return_target": False, "rough": True},
+                      "eval_every": 4_000_000, "eval_envs": 64, "return_target": False, "rough": ("go1", "ppo")},
     "go1_rough_fastsac": {**_OFFPOLICY, "script": "experiments/fastsac_go1_rough.py", "return_target": False,
-                          "rough": True, "flags": ["--utd_mode=free"]},
+                          "rough": ("go1", "fastsac"), "flags": ["--utd_mode=free"]},
     "go2_rough_flashsac": {**_OFFPOLICY, "script": "experiments/flashsac_go2_rough.py", "return_target": False,
-                           "rough": True, "flags": ["--utd_mode=free"]},
+                           "rough": ("go2", "flashsac"), "flags": ["--utd_mode=free"]},
     "g1_rough_fastsac": {**_OFFPOLICY, "script": "experiments/fastsac_g1_rough.py", "return_target": False,
-                         "rough": True, "flags": ["--utd_mode=free"]},
+                         "rough": ("g1", "fastsac"), "flags": ["--utd_mode=free"]},
+    # the MJX baseline on rough ground (tasks/mjx_rough.py): the Go1 MJX scripts on go1_joystick_rough
+    "mjx_go1_rough_ppo": {"kind": "mjx", "sync": "lockstep", "script": "experiments/ppo_go1_mjx.py",
+                          "eval_every": 10_000_000, "eval_envs": _OFFPOLICY["eval_envs"], "return_target": False,
+                          "rough": ("go1", "ppo"), "flags": ["--task=go1_joystick_rough"]},
+    "mjx_go1_rough_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
+                              "eval_every": 2_000_000, "eval_envs": _OFFPOLICY["eval_envs"], "return_target": False,
+                              "rough": ("go1", "fastsac"), "flags": ["--task=go1_joystick_rough"]},
     "mjx_ppo": {"kind": "mjx", "sync": "lockstep", "script": "experiments/ppo_go1_mjx.py", "eval_every": 10_000_000,
                 "eval_envs": _OFFPOLICY["eval_envs"], "return_target": True},
     "mjx_fastsac": {"kind": "mjx", "sync": "lockstep", "script": "experiments/fastsac_go1_mjx.py",
@@ -239,13 +247,19 @@ def goals_reached(rows: list[dict[str, Any]], target: float | None, rough: bool 
 
 
 def terrain_levels(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The highest mean terrain level of the training rows (``episode/terrain_level``), its wall time and step."""
+    """The highest mean terrain level of the training rows (``episode/terrain_level``), its wall time and step, the
+    grid's top level (from the level histogram ``episode/terrain_level_<k>``) and the highest mean as a fraction of
+    it (issue 33's goal: >= 0.7)."""
     logged = [r for r in rows if "episode/terrain_level" in r and "time/wall_s" in r]
     if not logged:
-        return {"max_terrain_level": None, "max_terrain_level_wall_s": None, "max_terrain_level_step": None}
+        return {"max_terrain_level": None, "max_terrain_level_wall_s": None, "max_terrain_level_step": None,
+                "terrain_level_top": None, "max_terrain_level_fraction": None}
     best = max(logged, key=lambda r: r["episode/terrain_level"])
+    prefix = "episode/terrain_level_"
+    top = max((int(k[len(prefix):]) for k in best if k.startswith(prefix) and k[len(prefix):].isdigit()), default=None)
     return {"max_terrain_level": best["episode/terrain_level"], "max_terrain_level_wall_s": best["time/wall_s"],
-            "max_terrain_level_step": best["step"]}
+            "max_terrain_level_step": best["step"], "terrain_level_top": top,
+            "max_terrain_level_fraction": best["episode/terrain_level"] / top if top else None}
 
 
 def summarize(rows: list[dict[str, Any]], target: float | None, rough: bool = False) -> dict[str, Any]:
@@ -329,7 +343,7 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
     """Runs configuration ``name`` once and returns its record (not yet saved)."""
     cfg = cfg or CONFIGS[name]
     target = args.target if cfg["return_target"] else None
-    rough = cfg.get("rough", False)
+    rough = bool(cfg.get("rough"))
     stamp = datetime.datetime.now().strftime("%Y%m%d_%H%M%S")
     logdir = os.path.join(args.runs_dir, f"{name}_s{seed}_{stamp}")
     os.makedirs(logdir, exist_ok=True)
@@ -371,6 +385,9 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
               "returncode": proc.returncode, "bench_wall_s": time.time() - t_launch, "logdir": logdir,
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               **summarize(rows, target, rough)}
+    if rough:  # issue 33's record: robot, algo, seed, time to the rough-terrain criterion, the terrain level's maximum
+        robot, algo = cfg["rough"]
+        record.update(robot=robot, algo=algo, time_to_walking_rough_s=record["time_to_walking_s"])
     if args.metrics_dir and os.path.exists(reader.path):
         os.makedirs(args.metrics_dir, exist_ok=True)
         record["metrics_copy"] = os.path.join(args.metrics_dir, f"{name}_s{seed}_{stamp}.jsonl")

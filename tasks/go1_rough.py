@@ -24,8 +24,7 @@ The flat task (``tasks/go1_joystick.py``: model, MDP, rewards, domain randomisat
 * Command curriculum off by default (``command_curriculum=True`` starts at ``command_start`` of Playground's
   ranges): the flat task learns its full ranges without one.
 
-No MJX variant yet (``tasks/mjx_go1.py`` would need the cell state, the curriculum at reset and the scan in its
-jitted step; the math it would run -- ``curriculum``, ``terrain.height_scan`` -- is written on the shim).
+MJX variant: ``tasks/mjx_rough.py`` (``Go1RoughMjx``: this task as the template of ``tasks/mjx_go1.py``'s hooks).
 """
 
 from __future__ import annotations

@@ -23,7 +23,10 @@ from ``tasks/go1_joystick.py`` (configuration, model) and its math module ``task
   into per-env model fields (floor friction, dof frictionloss / armature, torso COM, body masses,
   ``qpos0``, servo gains for the optional motor strength) batched with ``vmap``, like Playground's
   ``randomize``; sampled once per env at reset.
-  The default-pose offset also shifts the motor targets (see the CPU task's docstring).
+  The default-pose offset also shifts the motor targets (see the CPU task's docstring). The optional action
+  latency (``dr_action_delay``) is the CPU task's queue (``actuation.delay_actions``) in ``Go1MjxState.extra``.
+* Hooks for variants (identities here): ``model_spec``, ``init_extra``, ``place``, ``extend_obs``, ``at_limit``,
+  ``after_transition`` -- ``tasks/mjx_rough.py`` puts the rough-terrain task on them.
 * Auto-reset: ended envs get a fresh random reset (new pose, velocities, command; ``mjx.forward`` for
   their sensors), ``reset_batch`` envs at a time (default ``num_envs / 16``, at least 32): their
   indices are gathered with ``nonzero``, reset and scattered back, in a ``while_loop`` that runs as
@@ -47,7 +50,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from tasks import base
+from tasks import actuation, base
 from tasks import go1_joystick as gj
 from tasks import go1_math as gm
 from tasks.floating_base import place_base
@@ -79,6 +82,9 @@ class Go1MjxState(NamedTuple):
     episode_return: jax.Array  # [M] running sums of the current episodes
     episode_length: jax.Array  # [M] int32
     key: jax.Array
+    # per-env state of what the config adds: the action queue ("queue" [M, D, nu], "delay" [M]) with
+    # ``dr_action_delay``; the rough variant's cells and curriculum sums (``tasks/mjx_rough.py``)
+    extra: dict = {}
 
 
 class MjxStepOut(NamedTuple):
@@ -94,6 +100,7 @@ class MjxStepOut(NamedTuple):
     reward_terms: dict
     episode_return: jax.Array
     episode_length: jax.Array
+    extras: dict = {}  # {name: [M]} per-episode metrics (``TaskSpec.episode_metrics``), read where episodes ended
 
 
 # --------------------------------------------------------------------------------------------------
@@ -147,11 +154,16 @@ def reset_in_batches(ended: jax.Array, carry: Any, key: jax.Array, batch: int, r
     return jax.lax.while_loop(lambda c: jnp.any(c[0]), one_pass, (ended, carry, key))[1]
 
 
-def mask_unstable(data: Any, next_obs: jax.Array, next_cobs: jax.Array, reward: jax.Array, scaled: dict):
-    """MuJoCo's divergence guard on the final state (non-finite or > ``MAX_VAL`` qpos/qvel/qacc) widened by
-    non-finite outputs; returns (unstable [M], and the outputs zeroed where unstable) as ``finish_step``."""
+def diverged(data: Any) -> jax.Array:
+    """[M] MuJoCo's divergence guard on the final state: non-finite or > ``MAX_VAL`` qpos, qvel or qacc."""
     big = lambda x: jnp.any(~jnp.isfinite(x) | (jnp.abs(x) > MAX_VAL), axis=-1)
-    unstable = big(data.qpos) | big(data.qvel) | big(data.qacc)
+    return big(data.qpos) | big(data.qvel) | big(data.qacc)
+
+
+def mask_unstable(data: Any, next_obs: jax.Array, next_cobs: jax.Array, reward: jax.Array, scaled: dict):
+    """``diverged`` widened by non-finite outputs; returns (unstable [M], and the outputs zeroed where unstable)
+    as ``finish_step``."""
+    unstable = diverged(data)
     unstable |= ~(jnp.all(jnp.isfinite(next_obs), axis=1) & jnp.all(jnp.isfinite(next_cobs), axis=1)
                   & jnp.isfinite(reward))
     zero_where = lambda x: jnp.where(unstable.reshape(-1, *([1] * (x.ndim - 1))), 0.0, x)
@@ -160,17 +172,56 @@ def mask_unstable(data: Any, next_obs: jax.Array, next_cobs: jax.Array, reward: 
 
 
 def finish_transition(state: Any, data: Any, steps: jax.Array, done: jax.Array, next_obs: jax.Array,
-                      next_cobs: jax.Array, reward: jax.Array, scaled: dict, episode_length: int) -> MjxStepOut:
+                      next_cobs: jax.Array, reward: jax.Array, scaled: dict, episode_length: int,
+                      limit: jax.Array | None = None) -> MjxStepOut:
     """The end of a control step shared by the MJX tasks (before any auto-reset): ``mask_unstable``, the end
-    flags (termination wins; divergence and ``steps >= episode_length`` truncate) and ``state``'s episode
-    sums plus this step. The new state takes ``obs``, ``critic_obs``, ``episode_return`` and
-    ``episode_length`` from the returned MjxStepOut."""
+    flags (termination wins; divergence, ``steps >= episode_length`` and ``limit [M]`` -- a task's other limits,
+    the rough variants' map edge -- truncate) and ``state``'s episode sums plus this step.
+    The new state takes ``obs``, ``critic_obs``, ``episode_return`` and ``episode_length`` from the returned
+    MjxStepOut."""
     unstable, next_obs, next_cobs, reward, scaled = mask_unstable(data, next_obs, next_cobs, reward, scaled)
     term = done & ~unstable
     trunc = ((steps >= episode_length) | unstable) & ~term
+    if limit is not None:
+        trunc |= limit & ~term
     return MjxStepOut(obs=next_obs, critic_obs=next_cobs, next_obs=next_obs, next_critic_obs=next_cobs, reward=reward,
                    terminated=term, truncated=trunc, reward_terms=scaled,
                    episode_return=state.episode_return + reward, episode_length=state.episode_length + 1)
+
+
+def init_delay(dr: dict, depth: int, n: int, action_dim: int) -> dict:
+    """The action queue's state (``tasks/actuation.py``): ``{"queue": zeros [n, depth, action_dim], "delay": [n]
+    int32}`` from ``dr["action_delay"]`` (a CPU task's ``[n, 1]`` column or ``sample_delay``'s); ``{}`` when
+    ``depth`` is 0 (latency off)."""
+    if not depth:
+        return {}
+    delay = dr["action_delay"][:, 0] if "action_delay" in dr else jnp.zeros((n,))
+    return {"queue": jnp.zeros((n, depth, action_dim)), "delay": jnp.round(delay).astype(jnp.int32)}
+
+
+def sample_delay(config: Any, key: jax.Array, n: int) -> dict:
+    """``{"action_delay": [n, 1]}``: per-env latencies U{lo, ..., hi} control steps (the CPU task's
+    ``actuation.sample_delays``), or ``{}`` where the CPU task draws none (latency or randomisation off)."""
+    lo, hi = (int(b) for b in config.dr_action_delay)
+    if not (config.domain_randomization and hi > 0):
+        return {}
+    return {"action_delay": jax.random.randint(key, (n, 1), lo, hi + 1).astype(jnp.float32)}
+
+
+def delayed(state: Any, a: jax.Array) -> tuple[jax.Array, Any]:
+    """(the action the motors get, ``state`` with its queue advanced): ``actuation.delay_actions`` on
+    ``state.extra``'s queue; ``a`` itself without one."""
+    if "queue" not in state.extra:
+        return a, state
+    applied, queue = actuation.delay_actions(state.extra["queue"], a, state.extra["delay"])
+    return applied, state._replace(extra={**state.extra, "queue": queue})
+
+
+def restart_queue(extra: dict, ended: jax.Array) -> dict:
+    """``extra`` with the ``ended`` envs' action queues emptied (zero actions: the default pose), as at a reset."""
+    if "queue" not in extra:
+        return extra
+    return {**extra, "queue": jnp.where(ended[:, None, None], 0.0, extra["queue"])}
 
 
 def restart_episodes(state: Any, ended: jax.Array, key: jax.Array, **fresh: Any) -> Any:
@@ -181,7 +232,35 @@ def restart_episodes(state: Any, ended: jax.Array, key: jax.Array, **fresh: Any)
                           episode_length=jnp.where(ended, 0, state.episode_length), key=key, **fresh)
 
 
-class Go1JoystickMjx:
+class MjxHooks:
+    """What the rough variants (``tasks/mjx_rough.py``) override in the MJX tasks (``Go1JoystickMjx``,
+    ``mjx_walking.WalkingMjx``); on flat ground they keep the action queue and change nothing else. The task sets
+    ``config`` and ``spec``."""
+
+    def init_extra(self, key: jax.Array, dr: dict, n: int) -> dict:
+        """The state's ``extra`` at the first reset: the action queue (``init_delay``)."""
+        return init_delay(dr, self.config.dr_action_delay[1], n, self.spec.action_dim)
+
+    def place(self, qpos: jax.Array, extra: dict) -> jax.Array:
+        """New episodes' ``qpos [n, nq]`` moved where their envs start (``extra``: those envs' rows)."""
+        return qpos
+
+    def extend_obs(self, data: Any, obs: jax.Array, critic_obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """(obs, critic_obs) with what a variant appends (the rough variant's height scan)."""
+        return obs, critic_obs
+
+    def at_limit(self, data: Any) -> jax.Array | None:
+        """[M] truncations besides the time limit (the rough variant's map edge); None: none."""
+        return None
+
+    def after_transition(self, before: Any, state: Any, out: MjxStepOut, ended: jax.Array,
+                         key: jax.Array) -> tuple[Any, MjxStepOut]:
+        """(state, out) after ``transition`` and before the auto-reset of the ``ended`` envs (``before``: the state
+        the step started from): here the ended envs' action queues are emptied."""
+        return state._replace(extra=restart_queue(state.extra, ended)), out
+
+
+class Go1JoystickMjx(MjxHooks):
     """``reset(key, dr=None) -> Go1MjxState``; ``step(state, action) -> (Go1MjxState, MjxStepOut)``; pure and
     jit-able (call them inside ``jax.jit``); ``spec`` as the CPU task's."""
 
@@ -192,11 +271,9 @@ class Go1JoystickMjx:
             raise ValueError(f"ctrl_dt {c.ctrl_dt} must be a multiple of sim_dt {c.sim_dt}")
         if num_envs <= 0:
             raise ValueError(f"num_envs must be positive, got {num_envs}")
-        if c.dr_action_delay[1] > 0:
-            raise ValueError("dr_action_delay: the MJX variant has no action latency; set it to (0, 0)")
         self.config, self.num_envs, self.nsub, self.dt = c, int(num_envs), nsub, c.ctrl_dt
         self.reset_batch = int(reset_batch or min(num_envs, max(32, math.ceil(num_envs / 16))))
-        self.model = gj.build_spec(c).compile()
+        self.model = self.model_spec().compile()
         m = self.model
         # MuJoCo's Euler integrates the solver's qacc unless some dof has damping; MJX's re-solves
         # M qacc = qfrc_smooth + qfrc_constraint whenever eulerdamp is on, which with the 1-iteration
@@ -226,9 +303,17 @@ class Go1JoystickMjx:
             privileged_dim=sum(self.dr_dims.values()),
         )
 
+    def model_spec(self) -> mujoco.MjSpec:
+        """The CPU task's model (the rough variant's adds the terrain)."""
+        return gj.build_spec(self.config)
+
     # ---- domain randomisation -----------------------------------------------------------------
     def sample_dr(self, key: jax.Array, n: int) -> dict[str, jax.Array]:
-        """Per-env DR parameters with the CPU task's keys and distributions (``Go1JoystickFlat.dr``)."""
+        """Per-env DR parameters with the CPU task's keys and distributions (``Go1JoystickFlat.dr``; latencies
+        ``action_delay`` from ``key``'s fold 1, so the other draws stay as without them)."""
+        return {**self._sample_model_dr(key, n), **sample_delay(self.config, jax.random.fold_in(key, 1), n)}
+
+    def _sample_model_dr(self, key: jax.Array, n: int) -> dict[str, jax.Array]:
         c = self.config
         if not c.domain_randomization:
             return {"floor_friction": jnp.full((n, 1), 0.6), "frictionloss_scale": jnp.ones((n, 12)),
@@ -293,16 +378,17 @@ class Go1JoystickMjx:
         t = jax.random.exponential(key, (n,), jnp.float32) * self.config.command_resample_mean_s
         return jnp.round(t / self.dt).astype(jnp.int32)
 
-    def _reset_draws(self, key: jax.Array, fields: dict, pose_offset: jax.Array) -> tuple[Any, dict, jax.Array]:
-        """New episodes for every env: (data after ``mjx.forward``, zeroed info with a new command,
-        steps until the next command)."""
+    def _reset_draws(self, key: jax.Array, fields: dict, pose_offset: jax.Array,
+                     extra: dict) -> tuple[Any, dict, jax.Array]:
+        """New episodes for the envs of these rows (``extra``: their ``Go1MjxState.extra``): (data after
+        ``mjx.forward``, zeroed info with a new command, steps until the next command)."""
         c, n = self.config, pose_offset.shape[0]
         ks = jax.random.split(key, 5)
         u = lambda k, shape, lo, hi: jax.random.uniform(k, shape, jnp.float32, lo, hi)
         qpos, qvel = place_base(self.init_qpos, u(ks[0], (n, 2), -c.reset_xy, c.reset_xy),
                                    u(ks[1], (n,), -c.reset_yaw, c.reset_yaw),
                                    u(ks[2], (n, 6), -c.reset_base_vel, c.reset_base_vel), self.model.nv)
-        data = self.forward(fields, qpos, qvel, self.consts["default_pose"] + pose_offset)
+        data = self.forward(fields, self.place(qpos, extra), qvel, self.consts["default_pose"] + pose_offset)
         nu = self.model.nu
         info = {"command": u(ks[3], (n, 3), -self._cmd_a, self._cmd_a), "last_act": jnp.zeros((n, nu)),
                 "feet_air_time": jnp.zeros((n, 4)), "last_contact": jnp.zeros((n, 4), bool),
@@ -310,9 +396,10 @@ class Go1JoystickMjx:
         return data, info, self._exp_steps(ks[4], n)
 
     def _observe(self, data: Any, info: dict, key: jax.Array) -> tuple[jax.Array, jax.Array]:
-        return gm.observe(self._sensors(data), data.qpos[:, 7:], data.qvel[:, 6:], info["last_act"],
-                          info["command"], info["last_contact"], info["feet_air_time"], self.consts["default_pose"],
-                          self._noise(key, data.qpos.shape[0]))
+        return self.extend_obs(data, *gm.observe(
+            self._sensors(data), data.qpos[:, 7:], data.qvel[:, 6:], info["last_act"], info["command"],
+            info["last_contact"], info["feet_air_time"], self.consts["default_pose"],
+            self._noise(key, data.qpos.shape[0])))
 
     def _reset_ended(self, ended, state, data, info, until, obs, cobs, key):
         """Fresh episodes for the ``ended`` envs, ``reset_batch`` of them per pass (``reset_in_batches``),
@@ -320,8 +407,8 @@ class Go1JoystickMjx:
         batch at every step."""
 
         def reset_rows(k_reset, k_obs, rows):
-            fields = jax.tree_util.tree_map(lambda x: x[rows], state.model_fields)
-            r_data, r_info, r_until = self._reset_draws(k_reset, fields, state.pose_offset[rows])
+            fields, extra = jax.tree_util.tree_map(lambda x: x[rows], (state.model_fields, state.extra))
+            r_data, r_info, r_until = self._reset_draws(k_reset, fields, state.pose_offset[rows], extra)
             r_obs, r_cobs = self._observe(r_data, r_info, k_obs)
             return r_data, r_info, r_until, r_obs, r_cobs
 
@@ -335,17 +422,21 @@ class Go1JoystickMjx:
         dr = self.sample_dr(k_dr, n) if dr is None else {k: jnp.asarray(v, jnp.float32) for k, v in dr.items()}
         fields = self.model_fields(dr)
         offset = dr["default_pose_offset"] if self.config.dr_pose_offset_on_targets else jnp.zeros((n, 12))
-        data, info, until = self._reset_draws(k_reset, fields, offset)
+        extra = self.init_extra(jax.random.fold_in(k_dr, 2), dr, n)
+        data, info, until = self._reset_draws(k_reset, fields, offset, extra)
         obs, cobs = self._observe(data, info, k_obs)
         return Go1MjxState(data=data, model_fields=fields, pose_offset=offset, info=info, steps_until_next_cmd=until,
                            steps=jnp.zeros((n,), jnp.int32), obs=obs, critic_obs=cobs,
-                           episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state)
+                           episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state,
+                           extra=extra)
 
     def step(self, state: Go1MjxState, action: jax.Array) -> tuple[Go1MjxState, MjxStepOut]:
-        """One control step of every env (``action [M, nu]`` clipped to [-1, 1], NaN -> 0); ended envs
-        auto-reset (``MjxStepOut.obs`` after the reset, ``next_obs`` before it)."""
+        """One control step of every env (``action [M, nu]`` clipped to [-1, 1], NaN -> 0; the motors get it
+        ``extra["delay"]`` steps late with ``dr_action_delay``); ended envs auto-reset (``MjxStepOut.obs`` after
+        the reset, ``next_obs`` before it)."""
         a = jnp.clip(jnp.nan_to_num(action.astype(jnp.float32), nan=0.0), -1.0, 1.0)
-        ctrl = self.consts["default_pose"] + state.pose_offset + a * self.config.action_scale
+        applied, state = delayed(state, a)
+        ctrl = self.consts["default_pose"] + state.pose_offset + applied * self.config.action_scale
         return self.after_physics(state, self.physics_step(state.model_fields, state.data, ctrl), a)
 
     def after_physics(self, state: Go1MjxState, data: Any, a: jax.Array) -> tuple[Go1MjxState, MjxStepOut]:
@@ -354,6 +445,7 @@ class Go1JoystickMjx:
         st, out = self.transition(state, data, a)
         ended = out.terminated | out.truncated
         key, k_reset = jax.random.split(st.key)
+        st, out = self.after_transition(state, st, out, ended, jax.random.fold_in(k_reset, 1))
         data, info, until, obs, cobs = self._reset_ended(ended, st, st.data, st.info, st.steps_until_next_cmd,
                                                          st.obs, st.critic_obs, k_reset)
         new_state = restart_episodes(st, ended, key, data=data, info=info, steps_until_next_cmd=until, obs=obs,
@@ -369,6 +461,7 @@ class Go1JoystickMjx:
         next_obs, next_cobs, done, scaled, reward, updated = gm.step_math(
             self._sensors(data), data.qpos[:, 7:], data.qvel[:, 6:], a, state.info, self._noise(k_noise, n),
             self.consts, c, self.scales, self.dt)
+        next_obs, next_cobs = self.extend_obs(data, next_obs, next_cobs)
         # Command resampling (the CPU task's rule and draws).
         kc = jax.random.split(k_cmd, 4)
         until = state.steps_until_next_cmd - 1
@@ -380,7 +473,8 @@ class Go1JoystickMjx:
         until = jnp.where(due, self._exp_steps(kc[3], n), until)
         steps = state.steps + 1
         # Divergence and non-finite outputs: truncate with zeroed outputs (the CPU task's finish_step).
-        out = finish_transition(state, data, steps, done, next_obs, next_cobs, reward, scaled, c.episode_length)
+        out = finish_transition(state, data, steps, done, next_obs, next_cobs, reward, scaled, c.episode_length,
+                                self.at_limit(data))
         new_state = state._replace(data=data, info=info, steps_until_next_cmd=until, steps=steps, obs=out.obs,
                                    critic_obs=out.critic_obs, episode_return=out.episode_return,
                                    episode_length=out.episode_length, key=key)

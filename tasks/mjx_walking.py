@@ -31,7 +31,11 @@ of the CPU task (the *template*) that supplies everything that defines the task:
 * Domain randomisation: per task (``DR``), the CPU task's ``sample_dr`` keys and distributions from a jax
   key (``reset(key, dr=task.dr)`` reuses a CPU draw) and ``randomize_model`` as batched model fields --
   Go2: servo Kp (``actuator_gainprm[:, 0]`` and ``actuator_biasprm[:, 1]``), Kd (``dof_damping`` of the
-  actuated dofs), base mass and base COM x; G1: floor friction, every body's mass, torso COM.
+  actuated dofs), base mass and base COM x; G1: floor friction, every body's mass, torso COM. The actuation's,
+  as the CPU task's and only where it draws them: motor strength (``dr_motor_strength``: each servo's Kp and Kd
+  times a per-env, per-motor factor) and action latency (``dr_action_delay``: the queue of
+  ``mjx_go1.delayed`` in ``WalkingMjxState.extra``).
+* Variants: the hooks of ``mjx_go1.MjxHooks`` (``tasks/mjx_rough.py``: the rough tasks).
 * Divergence: ``mjx_go1.finish_transition`` / ``mask_unstable`` (MuJoCo's guard evaluated once per control
   step, on the final state): such envs are truncated with zeroed outputs and reset, as on the CPU.
 
@@ -72,6 +76,7 @@ class WalkingMjxState(NamedTuple):
     episode_return: jax.Array  # [M] running sums of the current episodes
     episode_length: jax.Array  # [M] int32
     key: jax.Array
+    extra: dict = {}  # per-env state of what the config adds (``mjx_go1.Go1MjxState.extra``)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -183,25 +188,30 @@ def split_body_contact_sensors(spec: mujoco.MjSpec) -> list[tuple[str, list[str]
 # --------------------------------------------------------------------------------------------------
 # The environment
 # --------------------------------------------------------------------------------------------------
-class WalkingMjx:
+def task_dr(task_cls: type) -> TaskDR:
+    """The domain randomisation of ``task_cls`` or of the flat task it extends (the rough tasks: their flat one's)."""
+    for cls in task_cls.__mro__:
+        if cls in DR:
+            return DR[cls]
+    raise ValueError(f"{task_cls.__name__} has no MJX domain randomisation; known: {sorted(TASK_CLASSES)}")
+
+
+class WalkingMjx(mg.MjxHooks):
     """``reset(key, dr=None) -> WalkingMjxState``; ``step(state, action) -> (WalkingMjxState, MjxStepOut)``; pure
-    and jit-able; ``spec`` as the CPU task's. ``template`` is the one-env CPU task it is built from."""
+    and jit-able; ``spec`` as the CPU task's. ``template`` is the one-env CPU task it is built from (a subclass of
+    a task in ``DR``: the rough tasks' template brings the terrain, ``tasks/mjx_rough.py``)."""
 
     def __init__(self, task_cls: type[walking.WalkingTask], config: walking.WalkingConfig, num_envs: int,
                  reset_batch: int = 0):
-        if task_cls not in DR:
-            raise ValueError(f"{task_cls.__name__} has no MJX domain randomisation; known: {sorted(TASK_CLASSES)}")
+        self.dr_spec = task_dr(task_cls)
         if num_envs <= 0:
             raise ValueError(f"num_envs must be positive, got {num_envs}")
-        if config.dr_action_delay[1] > 0 or tuple(config.dr_motor_strength) != (1.0, 1.0):
-            raise ValueError("dr_action_delay / dr_motor_strength: not in the MJX variant; set (0, 0) / (1.0, 1.0)")
         self.template = t = task_cls(config, 1, 0)  # constants, hooks and the compiled CPU model
         t.close()
         c = self.config = config
         self.num_envs, self.dt, self.spec = int(num_envs), t.dt, t.spec
         self.nsub = round(c.ctrl_dt / c.sim_dt)
         self.reset_batch = int(reset_batch or min(num_envs, max(32, math.ceil(num_envs / 16))))
-        self.dr_spec = DR[task_cls]
         self.model = t.model  # the CPU task's model (sensor layout of ``cpu_sensordata``)
         spec = t.build_spec(c)
         self._contact_split = split_body_contact_sensors(spec)
@@ -230,12 +240,28 @@ class WalkingMjx:
 
     # ---- domain randomisation -----------------------------------------------------------------
     def sample_dr(self, key: jax.Array, n: int) -> dict[str, jax.Array]:
-        """Per-env DR parameters with the CPU task's keys and distributions (``task.dr``)."""
-        return self.dr_spec.sample(self, key, n)
+        """Per-env DR parameters with the CPU task's keys and distributions (``task.dr``; the actuation's,
+        ``motor_strength`` and ``action_delay``, only where the CPU task draws them, from folds of ``key``)."""
+        c, dr = self.config, self.dr_spec.sample(self, key, n)
+        lo, hi = c.dr_motor_strength
+        if c.domain_randomization and (lo, hi) != (1.0, 1.0):
+            dr["motor_strength"] = _uniform(jax.random.fold_in(key, 1), (n, self.model.nu), lo, hi)
+        return {**dr, **mg.sample_delay(c, jax.random.fold_in(key, 2), n)}
 
     def model_fields(self, dr: dict[str, jax.Array]) -> dict[str, jax.Array]:
-        """The per-env model fields of ``dr`` (the CPU task's ``randomize_model``, batched)."""
-        return self.dr_spec.model_fields(self, dr)
+        """The per-env model fields of ``dr`` (the CPU task's ``randomize_model``, batched, then the motor strength:
+        each servo's Kp and Kd times its factor)."""
+        fields = self.dr_spec.model_fields(self, dr)
+        if "motor_strength" not in dr:
+            return fields
+        m, strength = self.mjx_model, dr["motor_strength"]
+        n, vadr = strength.shape[0], self.template._act_vadr
+        gain = fields.get("actuator_gainprm", _tile(m.actuator_gainprm, n))
+        bias = fields.get("actuator_biasprm", _tile(m.actuator_biasprm, n))
+        damping = fields.get("dof_damping", _tile(m.dof_damping, n))
+        return {**fields, "actuator_gainprm": gain.at[:, :, 0].multiply(strength),
+                "actuator_biasprm": bias.at[:, :, 1].multiply(strength),
+                "dof_damping": damping.at[:, vadr].multiply(strength)}
 
     # ---- physics ------------------------------------------------------------------------------
     def physics_step(self, fields: dict, data: Any, ctrl: jax.Array) -> Any:
@@ -274,23 +300,25 @@ class WalkingMjx:
         n = a.shape[0]
         return _tile(self.default_ctrl, n).at[:, self.policy_idx].add(self.config.action_scale * a)
 
-    def _reset_draws(self, key: jax.Array, fields: dict) -> tuple[Any, dict]:
-        """New episodes (the CPU task's ``_reset_envs``): data after ``mjx.forward``, info with a new command."""
+    def _reset_draws(self, key: jax.Array, fields: dict, extra: dict) -> tuple[Any, dict]:
+        """New episodes (the CPU task's ``_reset_envs``) of the envs of these rows (``extra``: their
+        ``WalkingMjxState.extra``): data after ``mjx.forward``, info with a new command."""
         c = self.config
         n = jax.tree_util.tree_leaves(fields)[0].shape[0]
         ks = jax.random.split(key, 4)
         qpos, qvel = place_base(self.init_qpos, _uniform(ks[0], (n, 2), -c.reset_xy, c.reset_xy),
                                    _uniform(ks[1], (n,), -c.reset_yaw, c.reset_yaw),
                                    _uniform(ks[2], (n, 6), -c.reset_base_vel, c.reset_base_vel), self.model.nv)
-        data = self.forward(fields, qpos, qvel, _tile(self.default_ctrl, n))
+        data = self.forward(fields, self.place(qpos, extra), qvel, _tile(self.default_ctrl, n))
         info = {"command": _uniform(ks[3], (n, 3), self._cmd_low, self._cmd_high),
                 "last_act": jnp.zeros((n, self.spec.action_dim))}
         return data, info
 
     def _observe(self, data: Any, info: dict, steps: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         t = self.template
-        return walking.observe(self.sensors(data, info, steps), info["last_act"], self._noise(key, steps.shape[0]),
-                               t.default_pose, t.phase_groups, t.critic_extra)
+        return self.extend_obs(data, *walking.observe(self.sensors(data, info, steps), info["last_act"],
+                                                      self._noise(key, steps.shape[0]), t.default_pose, t.phase_groups,
+                                                      t.critic_extra))
 
     def reset(self, key: jax.Array, dr: dict | None = None) -> WalkingMjxState:
         """Every env at the start of an episode; ``dr`` (numpy or jax, the CPU task's keys) fixes the
@@ -299,30 +327,35 @@ class WalkingMjx:
         k_dr, k_reset, k_obs, k_state = jax.random.split(key, 4)
         dr = self.sample_dr(k_dr, n) if dr is None else {k: jnp.asarray(v, jnp.float32) for k, v in dr.items()}
         fields = self.model_fields(dr)
-        data, info = self._reset_draws(k_reset, fields)
+        extra = self.init_extra(jax.random.fold_in(k_dr, 3), dr, n)
+        data, info = self._reset_draws(k_reset, fields, extra)
         steps = jnp.zeros((n,), jnp.int32)
         obs, cobs = self._observe(data, info, steps, k_obs)
         return WalkingMjxState(data=data, model_fields=fields, info=info, steps=steps, obs=obs, critic_obs=cobs,
-                               episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state)
+                               episode_return=jnp.zeros((n,)), episode_length=jnp.zeros((n,), jnp.int32), key=k_state,
+                               extra=extra)
 
     def step(self, state: WalkingMjxState, action: jax.Array) -> tuple[WalkingMjxState, MjxStepOut]:
         """One control step of every env (``action [M, action_dim]``, NaN -> 0, clipped to +-action_clip if
-        that is > 0); ended envs auto-reset (``MjxStepOut.obs`` after the reset, ``next_obs`` before it)."""
+        that is > 0; the motors get it ``extra["delay"]`` steps late with ``dr_action_delay``); ended envs
+        auto-reset (``MjxStepOut.obs`` after the reset, ``next_obs`` before it)."""
         a = jnp.nan_to_num(action.astype(jnp.float32), nan=0.0)
         if self.config.action_clip > 0:
             a = jnp.clip(a, -self.config.action_clip, self.config.action_clip)
-        return self.after_physics(state, self.physics_step(state.model_fields, state.data, self.ctrl(a)), a)
+        applied, state = mg.delayed(state, a)
+        return self.after_physics(state, self.physics_step(state.model_fields, state.data, self.ctrl(applied)), a)
 
     def after_physics(self, state: WalkingMjxState, data: Any, a: jax.Array) -> tuple[WalkingMjxState, MjxStepOut]:
         """``transition``, then fresh episodes for the envs that ended."""
         st, out = self.transition(state, data, a)
         ended = out.terminated | out.truncated
         key, k_reset = jax.random.split(st.key)
+        st, out = self.after_transition(state, st, out, ended, jax.random.fold_in(k_reset, 1))
         zeros = jnp.zeros_like(st.steps)
 
         def reset_rows(k_data, k_obs, rows):
-            fields = jax.tree_util.tree_map(lambda x: x[rows], st.model_fields)
-            r_data, r_info = self._reset_draws(k_data, fields)
+            fields, extra = jax.tree_util.tree_map(lambda x: x[rows], (st.model_fields, st.extra))
+            r_data, r_info = self._reset_draws(k_data, fields, extra)
             r_obs, r_cobs = self._observe(r_data, r_info, zeros[rows], k_obs)
             return r_data, r_info, r_obs, r_cobs
 
@@ -342,12 +375,14 @@ class WalkingMjx:
         next_obs, next_cobs, done, scaled, reward = walking.step_math(
             s, a, self._noise(k_noise, n), t.default_pose, t.phase_groups, c, t.scales, self.dt, t.reward_terms,
             t.critic_extra)
+        next_obs, next_cobs = self.extend_obs(data, next_obs, next_cobs)
         if self._push_every:  # the CPU task's ``_push``: after the observation, envs not terminated
             due = (steps % self._push_every == 0) & ~done
             lim = jnp.asarray(c.push_vel, jnp.float32)
             dv = jnp.where(due[:, None], _uniform(k_push, (n, 3), -lim, lim), 0.0)
             data = data.replace(qvel=data.qvel.at[:, 0:3].add(dv))
-        out = mg.finish_transition(state, data, steps, done, next_obs, next_cobs, reward, scaled, c.episode_length)
+        out = mg.finish_transition(state, data, steps, done, next_obs, next_cobs, reward, scaled, c.episode_length,
+                                   self.at_limit(data))
         info = {"command": state.info["command"], "last_act": a}
         new_state = state._replace(data=data, info=info, steps=steps, obs=out.obs, critic_obs=out.critic_obs,
                                    episode_return=out.episode_return, episode_length=out.episode_length, key=key)

@@ -86,16 +86,6 @@ def terrain_config(c: RoughConfig) -> terrain.TerrainConfig:
         step_height=c.terrain_step_height, obstacle_height=c.terrain_obstacle_height)
 
 
-def highest_ground(sampler: dict, x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
-    """[n] the highest map sample within ``radius`` (a square) of each point (x, y) [n]."""
-    hmap, scale, border = sampler["heights"], sampler["scale"], sampler["border"]
-    k = math.ceil(radius / scale)
-    off = np.arange(-k, k + 2)  # the cells the square touches, both corners included
-    i = np.clip(np.floor((x + border) / scale).astype(np.int64)[:, None] + off, 0, hmap.shape[0] - 1)
-    j = np.clip(np.floor((y + border) / scale).astype(np.int64)[:, None] + off, 0, hmap.shape[1] - 1)
-    return hmap[i[:, :, None], j[:, None, :]].max(axis=(1, 2))
-
-
 class TerrainState:
     """The terrain and the per-env curriculum state of one task instance (see the module docstring)."""
 
@@ -119,7 +109,7 @@ class TerrainState:
         self.frozen = False  # evaluation: cells fixed, curricula off
         x_max, y_max = self.terrain.extent
         margin = c.terrain_border - 1.0
-        self._bounds = (-margin, x_max + margin, -margin, y_max + margin)
+        self.bounds = (-margin, x_max + margin, -margin, y_max + margin)
         self.metric_names = ("terrain_level", *(f"terrain_level_{k}" for k in range(c.terrain_levels)))
 
     @property
@@ -144,7 +134,7 @@ class TerrainState:
         c, s = np.cos(yaw), np.sin(yaw)
         x = qpos[:, 0:1] + c * feet[None, :, 0] - s * feet[None, :, 1]
         y = qpos[:, 1:2] + s * feet[None, :, 0] + c * feet[None, :, 1]
-        top = highest_ground(self.sampler, x.ravel(), y.ravel(), self.config.spawn_radius).reshape(x.shape)
+        top = terrain.highest_ground(self.sampler, x.ravel(), y.ravel(), self.config.spawn_radius).reshape(x.shape)
         qpos[:, 2] = standing_height + top.max(axis=1)
         return qpos
 
@@ -154,7 +144,7 @@ class TerrainState:
         return terrain.height_scan(self.sampler, qpos[:, :3], yaw, self.points)
 
     def off_map(self, qpos: np.ndarray) -> np.ndarray:
-        x0, x1, y0, y1 = self._bounds
+        x0, x1, y0, y1 = self.bounds
         x, y = qpos[:, 0], qpos[:, 1]
         return (x < x0) | (x > x1) | (y < y0) | (y > y1)
 
@@ -320,26 +310,38 @@ class TerrainEval:
         self.active &= ~ended
         return out
 
-    def _numbers(self, envs: np.ndarray) -> dict[str, float]:
-        n = self._count[envs].sum()
-        mean = self._sums[envs].sum(axis=0) / n if n else np.full(2, np.nan)
-        return {"tracking_error": float(mean[0]), "yaw_rate_error": float(mean[1]),
-                "fall_rate": float(self._fell[envs].mean())}
-
     def result(self) -> dict[str, float]:
         rough = self._task.rough
-        out = {**self._numbers(np.ones(self._task.num_envs, dtype=bool)),
-               "terrain_level": float(rough.levels.mean()), "terrain_level_min": float(rough.levels.min()),
-               "terrain_level_top": float(rough.config.terrain_levels - 1), "evaluated_steps": int(self._count.sum()),
-               "episodes": self._task.num_envs}
-        out["rough_terrain_walking"] = float(WALKING.met_on_rough(out))
-        names = np.asarray(rough.terrain.columns)[rough.cols]
-        for t in self.types:
-            envs = names == t
-            if not envs.any():
-                out.update({f"walking_{t}": math.nan, f"tracking_error_{t}": math.nan, f"fall_rate_{t}": math.nan})
-                continue
-            numbers = self._numbers(envs)
-            out.update({f"walking_{t}": float(WALKING.met(numbers)), f"tracking_error_{t}": numbers["tracking_error"],
-                        f"fall_rate_{t}": numbers["fall_rate"]})
-        return out
+        return evaluation_numbers(self._sums, self._count, self._fell, rough.levels, rough.cols,
+                                  rough.terrain.columns, rough.config.terrain_levels)
+
+
+def evaluation_numbers(sums: np.ndarray, count: np.ndarray, fell: np.ndarray, levels: np.ndarray, cols: np.ndarray,
+                       columns: tuple[str, ...], num_levels: int) -> dict[str, float]:
+    """The rough evaluation's numbers (``TerrainEval.LOGGED`` plus ``evaluated_steps`` and ``episodes``) from each
+    env's first episode: ``sums [M, 2]`` its tracking and yaw-rate errors summed over ``count [M]`` evaluated steps,
+    ``fell [M]`` whether it terminated, on cell (``levels [M]``, ``cols [M]``) of a grid of ``columns`` and
+    ``num_levels`` levels. Shared by the CPU tracker and the MJX evaluation (``unilab_jax/training/mjx.py``)."""
+    sums, count, fell = np.asarray(sums, np.float64), np.asarray(count, np.float64), np.asarray(fell, bool)
+    levels, cols = np.asarray(levels), np.asarray(cols)
+
+    def numbers(envs: np.ndarray) -> dict[str, float]:
+        n = count[envs].sum()
+        mean = sums[envs].sum(axis=0) / n if n else np.full(2, np.nan)
+        return {"tracking_error": float(mean[0]), "yaw_rate_error": float(mean[1]),
+                "fall_rate": float(fell[envs].mean())}
+
+    out = {**numbers(np.ones(levels.shape[0], dtype=bool)), "terrain_level": float(levels.mean()),
+           "terrain_level_min": float(levels.min()), "terrain_level_top": float(num_levels - 1),
+           "evaluated_steps": int(count.sum()), "episodes": int(levels.shape[0])}
+    out["rough_terrain_walking"] = float(WALKING.met_on_rough(out))
+    names = np.asarray(columns)[cols]
+    for t in dict.fromkeys(columns):
+        envs = names == t
+        if not envs.any():
+            out.update({f"walking_{t}": math.nan, f"tracking_error_{t}": math.nan, f"fall_rate_{t}": math.nan})
+            continue
+        n = numbers(envs)
+        out.update({f"walking_{t}": float(WALKING.met(n)), f"tracking_error_{t}": n["tracking_error"],
+                    f"fall_rate_{t}": n["fall_rate"]})
+    return out

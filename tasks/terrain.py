@@ -33,8 +33,9 @@ height is measured from the border's ground (0):
 ``add_to_spec`` turns the height map into a MuJoCo ``hfield`` plus a geom that replaces the scene's floor plane
 (keeping its name, contact parameters and contact pairs, so foot-contact sensors and floor-friction domain
 randomisation work unchanged). ``ground_height`` reads the map at world points (legged_gym's sampler: the
-minimum of the sample at or below the point and its +x and +y neighbours) and ``height_scan`` is legged_gym's
-grid of points around the base, both written against the array-API shim so the MJX variants can run them.
+minimum of the sample at or below the point and its +x and +y neighbours), ``highest_ground`` the highest sample
+near a point (spawn heights) and ``height_scan`` is legged_gym's grid of points around the base, all written against
+the array-API shim so the MJX variants (``tasks/mjx_rough.py``) run them.
 
 Memory: MuJoCo keeps the heightfield in the model as float32, and the CPU tasks copy the model per env for
 domain randomisation, so each env holds ``nx * ny * 4`` bytes (the default grid: ~3 MB per env).
@@ -251,6 +252,18 @@ def ground_height(sampler: dict, x, y):
     i = xp.clip(xp.astype(xp.floor((x + border) / scale), xp.int32), 0, nx - 2)
     j = xp.clip(xp.astype(xp.floor((y + border) / scale), xp.int32), 0, ny - 2)
     return xp.minimum(xp.minimum(hmap[i, j], hmap[i + 1, j]), hmap[i, j + 1])
+
+
+def highest_ground(sampler: dict, x, y, radius: float):
+    """[n] the highest map sample within ``radius`` (a square) of each point ``x, y [n]``: the samples of every grid
+    cell the square touches, both corners included (where a robot's feet may rest)."""
+    xp = shim.namespace(x, y)
+    hmap, scale, border = sampler["heights"], sampler["scale"], sampler["border"]
+    k = math.ceil(radius / scale)
+    off = xp.arange(-k, k + 2)
+    i = xp.clip(xp.astype(xp.floor((x + border) / scale), xp.int32)[:, None] + off, 0, hmap.shape[0] - 1)
+    j = xp.clip(xp.astype(xp.floor((y + border) / scale), xp.int32)[:, None] + off, 0, hmap.shape[1] - 1)
+    return xp.max(hmap[i[:, :, None], j[:, None, :]], axis=(1, 2))
 
 
 def scan_points(nx: int = 17, ny: int = 11, spacing: float = 0.1) -> np.ndarray:

@@ -22,8 +22,7 @@
   +-0.01-0.06 m, slopes 0-0.4); G1 (legs ~0.7 m) steps 0.02-0.18 m on 0.3 m treads, obstacles 0.02-0.12 m,
   rough +-0.01-0.06 m, slopes 0-0.4. Choices, not tuned.
 
-No MJX variants (``docs/TERRAIN.md``: MJX collides spheres with heightfields; the cell state, curricula and scan
-would move into ``tasks/mjx_walking.py``'s state).
+MJX variants: ``tasks/mjx_rough.py`` (``WalkingRoughMjx``: these tasks as the templates of ``tasks/mjx_walking.py``).
 """
 
 from __future__ import annotations

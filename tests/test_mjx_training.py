@@ -15,6 +15,7 @@ from compile_options import FAST_COMPILE
 from script_helpers import run_in_process
 
 from unilab_jax import algos
+from unilab_jax.apps import cli
 from unilab_jax.config import apply_overrides
 from unilab_jax.training.mjx import MjxRunConfig, OffPolicyMjxTrainer, PPOMjxTrainer, make_trainer
 
@@ -39,8 +40,10 @@ def ppo_run(tmp_path_factory):
     return trainer, trainer.train(), _rows(logdir)
 
 
-def test_ppo_mjx_trains_and_logs(ppo_run):
+def test_ppo_mjx_trains_and_logs(ppo_run, capsys):
     trainer, summary, rows = ppo_run
+    cli.report(summary)  # what the MJX experiment scripts print at the end (a run without checkpoints)
+    assert f"logs: {summary['logdir']}" in capsys.readouterr().out
     assert isinstance(trainer, PPOMjxTrainer)
     assert summary["env_steps"] == 2 * 12 * M and summary["stopped_by"] == "total_steps"
     train = [r for r in rows if "loss/policy_loss" in r]

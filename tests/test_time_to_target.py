@@ -229,9 +229,14 @@ def test_rough_terrain_walking_criterion():
         row.update({"eval/terrain_level_min": low, "eval/terrain_level_top": 9.0})
     for r, level in zip(rows[:10], (0.5, 1.0, 2.5, 4.0, 3.5, 6.0, 6.5, 6.2, 5.0, 6.1)):
         r["episode/terrain_level"] = level
+        r.update({f"episode/terrain_level_{k}": float(k == round(level)) for k in range(10)})  # the histogram
     s = ttt.summarize(rows, None, rough=True)
     assert s["time_to_walking_s"] == 40.0 and ttt.summarize(rows, None)["time_to_walking_s"] == 20.0
     assert (s["max_terrain_level"], s["max_terrain_level_wall_s"], s["max_terrain_level_step"]) == (6.5, 70.0, 70_000)
+    assert s["terrain_level_top"] == 9 and s["max_terrain_level_fraction"] == pytest.approx(6.5 / 9)
     assert ttt.goals_reached(rows, None, rough=True) and not ttt.goals_reached(rows[:11], None, rough=True)
     assert "--eval_envs=64" in ttt.command("g1_rough_fastsac", ttt.CONFIGS["g1_rough_fastsac"], 0, "/tmp/x",
                                            ttt.parse_args(["--only", "g1_rough_fastsac"]))
+    mjx = ttt.command("mjx_go1_rough_ppo", ttt.CONFIGS["mjx_go1_rough_ppo"], 0, "/tmp/x",
+                      ttt.parse_args(["--only", "mjx_go1_rough_ppo"]))
+    assert "--task=go1_joystick_rough" in mjx and mjx[1].endswith("experiments/ppo_go1_mjx.py")

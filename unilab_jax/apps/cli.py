@@ -343,7 +343,8 @@ def report(summary: Mapping[str, Any]) -> None:
     made no learner update, or fewer than asked) last, where it is seen."""
     print(json.dumps(summary, indent=2))
     print(f"logs: {summary['logdir']}  (view: tensorboard --logdir {summary['logdir']}; {TENSORBOARD_HINT})")
-    print(f"checkpoints: {summary['checkpoints']}")
+    if "checkpoints" in summary:  # the MJX loop keeps none
+        print(f"checkpoints: {summary['checkpoints']}")
     if summary.get("warning"):
         print(f"warning: {summary['warning']}", flush=True)
 

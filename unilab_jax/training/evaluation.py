@@ -69,8 +69,12 @@ class SceneRenderer:
         self.camera = mujoco.MjvCamera()
         if model.njnt and _moves_freely(model, int(model.jnt_bodyid[0])):
             self.camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-            self.camera.trackbodyid = int(model.jnt_bodyid[0])
-            self.camera.distance = max(1.5, 2.0 * model.stat.extent)
+            self.camera.trackbodyid = root = int(model.jnt_bodyid[0])
+            # The scene's size, at most 3x the robot's: a rough task's terrain makes ``model.stat.extent`` ~100 m.
+            _, data = task.render_scene(env)
+            own = np.flatnonzero(model.body_rootid[model.geom_bodyid] == root)
+            reach = np.linalg.norm(data.geom_xpos[own] - data.xpos[root], axis=1) + model.geom_rbound[own]
+            self.camera.distance = max(1.5, 2.0 * min(model.stat.extent, 3.0 * float(reach.max(initial=0.0))))
             self.camera.elevation, self.camera.azimuth = -20.0, 135.0
         else:
             self.camera.type = mujoco.mjtCamera.mjCAMERA_FREE

@@ -4,7 +4,9 @@ The way MuJoCo Playground (brax) or IsaacLab users train, built from this projec
 only the placement of the simulation differs from the heterogeneous runtime:
 
 * the environment is the MJX variant of the CPU task (``tasks/mjx_go1.py`` for Go1, ``tasks/mjx_walking.py``
-  for Go2 / G1: same model, observation, reward, resets and domain randomisation, float32);
+  for Go2 / G1, ``tasks/mjx_rough.py`` for the three on rough terrain: same model, observation, reward, resets
+  and domain randomisation, float32); episode metrics (the rough tasks' terrain levels) are logged as
+  ``episode/<name>`` over the episodes that ended, as the CPU trainer logs them;
 * the algorithms are the same modules: ``act`` (shim-written, here on jax arrays), the networks, and
   the jitted learner updates of ``algos/ppo/learner_jax.py`` and ``algos/offpolicy/learner_jax.py`` (their ``_update``
   is traced into the training step below);
@@ -53,9 +55,12 @@ from unilab_jax.metrics import WALKING, MetricLogger
 from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.training.threads import LearnerThread, stop_on_signals, wait_result
 
-# task name -> module with ``make(config, num_envs)`` (the walking module picks the task from the config's type)
+# task name -> module with ``make(config, num_envs)`` (the walking and rough modules pick the task from the config's
+# type); the rough module's ``make`` also takes ``evaluation`` (envs frozen on the evaluation cells)
 MJX_TASKS = {"go1_joystick_flat": "tasks.mjx_go1", "go2_joystick_flat": "tasks.mjx_walking",
-             "g1_walk_flat": "tasks.mjx_walking"}
+             "g1_walk_flat": "tasks.mjx_walking", "go1_joystick_rough": "tasks.mjx_rough",
+             "go2_joystick_rough": "tasks.mjx_rough", "g1_walk_rough": "tasks.mjx_rough"}
+FROZEN_FOR_EVALUATION = ("tasks.mjx_rough",)  # modules whose evaluation envs differ from the training envs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,18 +92,21 @@ _ENVS: dict[tuple, EnvFns] = {}
 
 
 def make_env(task: str, num_envs: int, overrides: dict[str, Any] | None = None,
-             compiler_options: dict[str, Any] | None = None) -> EnvFns:
+             compiler_options: dict[str, Any] | None = None, evaluation: bool = False) -> EnvFns:
     """The MJX env of ``task`` with jitted reset/step, cached per (task, overrides, num_envs, compiler
-    options) so every user in the process shares one compilation."""
+    options, evaluation) so every user in the process shares one compilation; ``evaluation``: the env the
+    evaluations run (the rough tasks' frozen on their evaluation cells; the others' is the training env)."""
     import tasks
     from unilab_jax.config import apply_overrides
 
     if task not in MJX_TASKS:
         raise ValueError(f"task {task!r} has no MJX variant; MJX tasks: {sorted(MJX_TASKS)}")
     config = apply_overrides(tasks.default_config(task), overrides or {})
-    key = (task, config, int(num_envs), tuple(sorted((compiler_options or {}).items())))
+    frozen = evaluation and MJX_TASKS[task] in FROZEN_FOR_EVALUATION
+    key = (task, config, int(num_envs), tuple(sorted((compiler_options or {}).items())), frozen)
     if key not in _ENVS:
-        env = importlib.import_module(MJX_TASKS[task]).make(config, num_envs)
+        module = importlib.import_module(MJX_TASKS[task])
+        env = module.make(config, num_envs, evaluation=True) if frozen else module.make(config, num_envs)
         _ENVS[key] = EnvFns(env, jax.jit(env.reset, compiler_options=compiler_options),
                             jax.jit(env.step, compiler_options=compiler_options))
     return _ENVS[key]
@@ -108,12 +116,13 @@ def evaluate(env: EnvFns, act: Any, weights: Any, key: jax.Array) -> dict[str, f
     """One deterministic episode in each env: mean/std return summed until each env's first end, mean
     length, fall rate (terminated, not truncated), and the walking metric over the same episodes
     (``tasks.walking_metric.WalkingTracker``'s tracking and yaw-rate errors, ``eval/walking`` by
-    ``metrics.WALKING``). ``act(weights, obs) -> action`` is jitted."""
+    ``metrics.WALKING``); on the rough tasks also their ``evaluation_numbers`` (per terrain type, the
+    rough-terrain criterion ``eval/rough_terrain_walking``). ``act(weights, obs) -> action`` is jitted."""
     state = env.reset(key)
     n = env.env.num_envs
     ret, length = jnp.zeros(n), jnp.zeros(n, jnp.int32)
     alive, fell = jnp.ones(n, bool), jnp.zeros(n, bool)
-    errors = jnp.zeros(3)  # tracking error sum, yaw-rate error sum, evaluated steps
+    errors = jnp.zeros((n, 3))  # per env: tracking error sum, yaw-rate error sum, evaluated steps
     for t in range(env.env.spec.episode_length):
         command = state.info["command"]
         state, out = env.step(state, act(weights, state.obs))
@@ -121,26 +130,30 @@ def evaluate(env: EnvFns, act: Any, weights: Any, key: jax.Array) -> dict[str, f
                                                        out.truncated, command, state, env.env.base_velocity)
         if t % 100 == 99 and not bool(jnp.any(alive)):
             break
-    ret, errors = np.asarray(ret), np.asarray(errors)
+    ret, per_env, fell = np.asarray(ret), np.asarray(errors, np.float64), np.asarray(fell)
+    errors = per_env.sum(axis=0)
     result = {"eval/return": float(ret.mean()), "eval/return_std": float(ret.std()),
-              "eval/episode_length": float(np.asarray(length).mean()), "eval/fall_rate": float(np.asarray(fell).mean()),
+              "eval/episode_length": float(np.asarray(length).mean()), "eval/fall_rate": float(fell.mean()),
               "eval/tracking_error": float(errors[0] / errors[2]) if errors[2] else math.nan,
               "eval/yaw_rate_error": float(errors[1] / errors[2]) if errors[2] else math.nan}
     result["eval/walking"] = float(WALKING.met(result, prefix="eval/"))
+    if hasattr(env.env, "evaluation_numbers"):
+        numbers = env.env.evaluation_numbers(per_env[:, :2], per_env[:, 2], fell, state.extra)
+        result.update({f"eval/{k}": v for k, v in numbers.items()})
     return result
 
 
 @functools.partial(jax.jit, static_argnums=10)
 def _accumulate(ret, length, alive, fell, errors, reward, terminated, truncated, command, state, base_velocity):
-    """One step of ``evaluate``'s sums; a step's velocity error (``base_velocity(state)`` against the command
-    in force during the step) counts while its env is in its first episode and did not end on that step, as
-    in ``WalkingTracker``."""
+    """One step of ``evaluate``'s sums (``errors [M, 3]`` per env); a step's velocity error (``base_velocity(state)``
+    against the command in force during the step) counts while its env is in its first episode and did not end on
+    that step, as in ``WalkingTracker``."""
     ended = terminated | truncated
     velocity = base_velocity(state)
     ok = (alive & ~ended).astype(jnp.float32)
     err = jnp.stack([jnp.linalg.norm(command[:, :2] - velocity[:, :2], axis=1), jnp.abs(command[:, 2] - velocity[:, 2]),
                      jnp.ones_like(ok)], axis=1)
-    errors = errors + ok @ err
+    errors = errors + ok[:, None] * err
     ret = ret + jnp.where(alive, reward, 0.0)
     length = length + alive.astype(jnp.int32)
     fell = fell | (alive & terminated)
@@ -148,13 +161,15 @@ def _accumulate(ret, length, alive, fell, errors, reward, terminated, truncated,
 
 
 def _episode_stats(traj_return: jax.Array, traj_length: jax.Array, terminated: jax.Array, truncated: jax.Array,
-                   reward: jax.Array, terms: dict) -> dict:
-    """Sums for logging over a [T, M] stretch (divided on the host): finished episodes' return/length."""
+                   reward: jax.Array, terms: dict, extras: dict) -> dict:
+    """Sums for logging over a [T, M] stretch (divided on the host): finished episodes' return/length and
+    episode metrics (``MjxStepOut.extras``)."""
     ended = (terminated | truncated).astype(jnp.float32)
     return {"episodes": jnp.sum(ended), "return_sum": jnp.sum(traj_return * ended),
             "length_sum": jnp.sum(traj_length * ended), "terminated": jnp.sum(terminated.astype(jnp.float32)),
             "reward_sum": jnp.sum(reward), "steps": jnp.asarray(reward.size, jnp.float32),
-            **{f"term/{k}": jnp.sum(v) for k, v in terms.items()}}
+            **{f"term/{k}": jnp.sum(v) for k, v in terms.items()},
+            **{f"extra/{k}": jnp.sum(v * ended) for k, v in extras.items()}}
 
 
 def _add(a: dict, b: dict) -> dict:
@@ -176,7 +191,7 @@ class MjxTrainer:
         self.t0 = time.time() if start_time is None else start_time
         self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, dict(task_overrides)
         self.envs = make_env(run.task, run.num_envs, task_overrides, compiler_options)
-        self.eval_env = make_env(run.task, run.eval_envs, task_overrides, compiler_options)
+        self.eval_env = make_env(run.task, run.eval_envs, task_overrides, compiler_options, evaluation=True)
         self.spec = self.envs.env.spec
         self.learner = algos.make_learner(algo_module, "jax", algo_config, self.spec)
         self.logger = MetricLogger(run.logdir)
@@ -219,6 +234,7 @@ class MjxTrainer:
             out.update({"episode/return": s["return_sum"] / s["episodes"],
                         "episode/length": s["length_sum"] / s["episodes"],
                         "episode/terminated_fraction": s["terminated"] / s["episodes"]})
+            out.update({f"episode/{k[6:]}": v / s["episodes"] for k, v in s.items() if k.startswith("extra/")})
         out["reward/step_mean"] = s["reward_sum"] / s["steps"]
         out.update({f"reward/{k[5:]}": v / s["steps"] for k, v in s.items() if k.startswith("term/")})
         return out
@@ -231,7 +247,8 @@ class MjxTrainer:
             state = self.eval_env.reset(jax.random.PRNGKey(0))
             state, out = self.eval_env.step(state, self._eval_act(weights, state.obs))
             z = jnp.zeros(self.run.eval_envs)
-            jax.block_until_ready(_accumulate(z, z.astype(jnp.int32), z > 0, z > 0, jnp.zeros(3), out.reward,
+            errors = jnp.zeros((self.run.eval_envs, 3))
+            jax.block_until_ready(_accumulate(z, z.astype(jnp.int32), z > 0, z > 0, errors, out.reward,
                                               out.terminated, out.truncated, state.info["command"], state,
                                               self.eval_env.env.base_velocity))
 
@@ -339,13 +356,13 @@ class PPOMjxTrainer(MjxTrainer):
             tr = {"obs": es.obs, "critic_obs": es.critic_obs, "next_critic_obs": out.next_critic_obs,
                   "action": action, "reward": out.reward, "terminated": out.terminated, "truncated": out.truncated,
                   "episode_return": out.episode_return, "episode_length": out.episode_length,
-                  "terms": out.reward_terms, **extras}
+                  "terms": out.reward_terms, "episode_metrics": out.extras, **extras}
             return (es2, k), tr
 
         (env_state, key), traj = jax.lax.scan(step, (env_state, key), None, length=self.config.horizon)
         train_state, metrics = self.learner._update(train_state, {k: traj[k] for k in TRAJECTORY_FIELDS})
         stats = _episode_stats(traj["episode_return"], traj["episode_length"], traj["terminated"], traj["truncated"],
-                               traj["reward"], traj["terms"])
+                               traj["reward"], traj["terms"], traj["episode_metrics"])
         return (train_state, env_state, key), metrics, stats
 
 
@@ -406,7 +423,7 @@ class OffPolicyMjxTrainer(MjxTrainer):
                     for f in REPLAY_FIELDS}
             rp = Replay(data, (rp.ptr + m) % self.capacity, jnp.minimum(rp.size + m, self.capacity))
             st = _episode_stats(out.episode_return, out.episode_length, out.terminated, out.truncated, out.reward,
-                                out.reward_terms)
+                                out.reward_terms, out.extras)
             return (es2, rp, k), st
 
         (env_state, replay, key), stats = jax.lax.scan(env_step, (env_state, replay, key), None,

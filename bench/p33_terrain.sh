@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Issue 33 on the 1-GPU machine (H100 + 16 cores): the rough-terrain recipes to the rough-terrain walking criterion.
+#   CONFIG=go1_rough_fastsac SEEDS="0" MAXS=480 bash bench/p33_terrain.sh
+# CONFIG: a rough configuration of bench/time_to_target.py (go1_rough_ppo, go1_rough_fastsac, go2_rough_flashsac,
+# g1_rough_fastsac; the MJX baseline mjx_go1_rough_ppo, mjx_go1_rough_fastsac). Carry .devr (bench/device_bundle.sh)
+# and, for the videos, .gl (docs/dev/GPU_RUNS.md). Under $OUT:
+#   terrain.json       one record per run (robot, algo, seed, time_to_walking_rough_s, max_terrain_level and its
+#                      wall_s / step, max_terrain_level_fraction, git_commit, the evaluation curve): append its records
+#                      to bench/results/h100/phase3/terrain.json
+#   metrics/*.jsonl.gz each run's metrics; curves.json the mean terrain level against time (bench/terrain_curves.py)
+#   <config>_s<seed>_stairs_up.mp4, ..._stairs_down.mp4: the first seed's policy on each stairs type at the
+#                      evaluation's first level (runtime configurations only: the MJX loop keeps no checkpoint;
+#                      VIDEO=0 skips them)
+# One 10-minute command holds one run of MAXS seconds (default 480) plus ~1 minute of set-up and videos; a run that
+# misses the criterion within MAXS records the budget (a lower bound in --report).
+set -u
+OUT=${OUT:-/tmp/p33_terrain}; mkdir -p "$OUT/metrics"
+ROBOTS="unitree_go1 unitree_go2 unitree_g1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
+head -3 "$OUT/setup.txt"
+RUNS=${RUNS_DIR:-/tmp/time_to_target_runs}
+python3 bench/time_to_target.py --only "$CONFIG" --seed $SEEDS --max_seconds "${MAXS:-480}" --commit "${COMMIT:-unknown}" \
+  --runs_dir "$RUNS" --metrics_dir "$OUT/metrics" --out "$OUT/terrain.json" ${EXTRA:+--extra="$EXTRA"} 2>&1 \
+  | grep -v -i warning | tail -${TAIL:-14}
+python3 bench/terrain_curves.py "$OUT/metrics" --out "$OUT/curves.json"
+gzip -f "$OUT"/metrics/*.jsonl
+python3 - "$OUT/terrain.json" <<'PY'
+import json, sys
+for r in json.load(open(sys.argv[1]))["records"]:
+    print({k: r.get(k) for k in ("config", "robot", "algo", "seed", "time_to_walking_rough_s", "max_terrain_level",
+                                 "max_terrain_level_wall_s", "max_terrain_level_fraction", "stopped_by", "returncode")})
+    print("  last eval", r["evals"][-1] if r.get("evals") else None)
+PY
+first=$(ls -d "$RUNS/${CONFIG}_s${SEEDS%% *}_"* 2>/dev/null | tail -1)
+if [ "${VIDEO:-1}" = 1 ] && [ -n "$first" ] && ls "$first" | grep -q -i checkpoint; then
+  for stairs in stairs_up stairs_down; do
+    python3 -m unilab_jax.play --logdir "$first" --video "$OUT/${CONFIG}_s${SEEDS%% *}_$stairs.mp4" --steps "${STEPS:-500}" \
+      --width 640 --height 480 --task_config "terrain_columns=('$stairs',)" 2>&1 | grep -v -i warning | tail -12
+  done
+fi

@@ -1,0 +1,104 @@
+"""Mean terrain level against time of rough-terrain runs (issue 33's curves), from their ``metrics.jsonl``.
+
+Reads every ``<config>_s<seed>_<date>.jsonl`` (or ``.jsonl.gz``, as ``bench/p33_terrain.sh`` leaves them) in the
+given folders or files, keeps the training rows that log ``episode/terrain_level`` (the mean level of the episodes
+that ended: ``tasks/rough.py``), thinned to at most ``--points`` per run, and writes ``{run: {"wall_s": [...],
+"step": [...], "terrain_level": [...], "terrain_level_top": k}}`` as JSON; ``--png`` also plots them (matplotlib,
+the dev extra) with the goal line at 70% of the top level::
+
+    python bench/terrain_curves.py bench/results/h100/phase3/terrain/metrics --out curves.json --png curves.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import gzip
+import json
+import os
+import sys
+from typing import Any
+
+PREFIX = "episode/terrain_level_"
+GOAL_FRACTION = 0.7  # issue 33: the mean terrain level reaches >= 70% of the top level
+
+
+def _open(path: str):
+    return gzip.open(path, "rt") if path.endswith(".gz") else open(path)
+
+
+def curve(path: str, points: int = 400) -> dict[str, Any]:
+    """The terrain-level curve of one run's metrics file (``points`` rows at most, evenly thinned, last row kept)."""
+    rows = []
+    with _open(path) as f:
+        for line in f:
+            r = json.loads(line)
+            if "episode/terrain_level" in r and "time/wall_s" in r:
+                rows.append(r)
+    if len(rows) > points:
+        keep = sorted({round(i * (len(rows) - 1) / (points - 1)) for i in range(points)})
+        rows = [rows[i] for i in keep]
+    keys = rows[0].keys() if rows else ()
+    top = max((int(k[len(PREFIX):]) for k in keys if k.startswith(PREFIX) and k[len(PREFIX):].isdigit()), default=None)
+    return {"wall_s": [round(r["time/wall_s"], 1) for r in rows], "step": [r["step"] for r in rows],
+            "terrain_level": [round(r["episode/terrain_level"], 3) for r in rows], "terrain_level_top": top}
+
+
+def run_name(path: str) -> str:
+    """``<config>_s<seed>`` of ``<config>_s<seed>_<date>_<time>.jsonl[.gz]``."""
+    stem = os.path.basename(path).split(".jsonl")[0]
+    return stem.rsplit("_", 2)[0] if stem.count("_") >= 3 else stem
+
+
+def find(paths: list[str]) -> list[str]:
+    out = []
+    for p in paths:
+        out += sorted(glob.glob(os.path.join(p, "*.jsonl*"))) if os.path.isdir(p) else [p]
+    return out
+
+
+def plot(curves: dict[str, dict[str, Any]], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for name, c in sorted(curves.items()):
+        ax.plot(c["wall_s"], c["terrain_level"], label=name, linewidth=1.2)
+    tops = {c["terrain_level_top"] for c in curves.values() if c["terrain_level_top"]}
+    for top in tops:
+        ax.axhline(GOAL_FRACTION * top, color="grey", linestyle="--", linewidth=0.8)
+    ax.set_xlabel("wall time from process start (s)")
+    ax.set_ylabel("mean terrain level (ended episodes)")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("paths", nargs="+", help="metrics files or folders of them")
+    ap.add_argument("--out", required=True, help="the curves' JSON")
+    ap.add_argument("--png", default="", help="also plot them here (needs matplotlib)")
+    ap.add_argument("--points", type=int, default=400)
+    args = ap.parse_args(argv)
+    files = find(args.paths)
+    if not files or args.points < 2:
+        print("error: no metrics files found" if not files else "error: --points must be at least 2", file=sys.stderr)
+        return 2
+    curves = {run_name(p): curve(p, args.points) for p in files}
+    curves = {k: v for k, v in curves.items() if v["step"]}
+    with open(args.out, "w") as f:
+        json.dump(curves, f)
+    print(f"{args.out}: {len(curves)} runs")
+    for k, c in curves.items():
+        print(f"  {k}: max mean level {max(c['terrain_level']):.2f} of {c['terrain_level_top']}")
+    if args.png:
+        plot(curves, args.png)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
