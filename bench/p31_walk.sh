@@ -4,7 +4,7 @@
 #   CONFIG=fastsac_async SEEDS="0 1" NAME=go1_walk MAXS=270 bash bench/p31_walk.sh
 set -u
 OUT=${OUT:-/tmp/p31_walk}; mkdir -p "$OUT/metrics"
-ROBOTS="unitree_go1 unitree_g1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
+ROBOTS="${ROBOTS:-unitree_go1 unitree_g1}" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
 python3 bench/time_to_target.py --only "$CONFIG" --seed $SEEDS --max_seconds "${MAXS:-300}" --commit "${COMMIT:-unknown}" \
   --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$CONFIG.json" ${PROFILE:+--extra=--profile_dir=/tmp/p31_prof --extra=--profile_start=$PROFILE} 2>&1 | grep -v -i warning | tail -${TAIL:-12}
