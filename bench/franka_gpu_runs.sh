@@ -1,7 +1,8 @@
 # The README's Franka GPU commands (RLPD / SAC, peg insertion / pick-and-place) as named jobs run side by side on
 # one GPU machine, each followed by 40-episode evaluations of its last three checkpoints; logs, compacted metrics
 # (bench/compact_metrics.py) and evaluations go to $OUT. On the GPU machine, after bench/device_setup.sh:
-#   JOB_TIMEOUT=480 bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
+#   JOB_TIMEOUT=360 COMMIT=$(git rev-parse --short HEAD) bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
+# (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 400 in a 10-minute call)
 # JOB = rlpd_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
 #       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN; SPEED (default 10) sets --speed.
 # The image jobs: front + wrist cameras at 64 px, 2 frames each, DrQ's encoder; the critic reads the same images and
@@ -38,3 +39,6 @@ job() {
 for j in "$@"; do job $j & done
 while sleep 30; do n=$(jobs -r | wc -l); [ $n = 0 ] && break; for j in "$@"; do tail -c 200 $OUT/$j.log | tr '\n' ' ' | tail -c 110; echo; done; done
 wait
+# The evaluations as robot_learning.json records, and everything in one archive (at most 8 files come back from $OUT).
+python3 bench/robot_learning.py "$OUT" --out "$OUT/robot_learning.json" --commit "${COMMIT:-unknown}"
+tar czf /tmp/franka_runs.tgz -C "$OUT" . && find "$OUT" -mindepth 1 -delete && mv /tmp/franka_runs.tgz "$OUT/"

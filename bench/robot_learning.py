@@ -1,0 +1,67 @@
+"""Robot-learning results (issue 32): one record per evaluation in a JSON file.
+
+    python bench/robot_learning.py --out bench/results/h100/phase3/robot_learning.json --commit abc1234 DIR [DIR ...]
+
+Each DIR holds ``bench/franka_gpu_runs.sh``'s outputs; every ``<job>_eval40_<step>.json`` in it (``python -m
+unilab_jax.play``'s report on the checkpoint of env step ``<step>``) becomes a record: ``task``, ``algo``,
+``episodes`` and ``success`` (the success rate) from the report; ``observation`` (``images`` for the ``*_images*``
+jobs, else ``state``), ``asymmetric`` (``*_asym_*``: the critic also reads the privileged state) and ``seed``
+(``_sN``) from the job's name; ``env_steps``; ``robot_minutes`` = env steps / (control rate x 60), the control
+rate being the report's ``fps``. A record replaces the file's record of the same job and env step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import re
+import sys
+
+REPORT = re.compile(r"^(?P<job>.+_s(?P<seed>\d+))_eval40_(?P<step>\d+)\.json$")
+
+
+def records(folder: str, commit: str) -> list[dict]:
+    """The records of the evaluation reports in ``folder``."""
+    out = []
+    for path in sorted(glob.glob(os.path.join(folder, "*_eval40_*.json"))):
+        m = REPORT.match(os.path.basename(path))
+        if m is None:
+            continue
+        with open(path) as f:
+            report = json.load(f)
+        job, step = m["job"], int(m["step"])
+        out.append({"job": job, "task": report["task"], "algo": report["algo"],
+                    "observation": "images" if "_images" in job else "state", "asymmetric": "_asym_" in job,
+                    "seed": int(m["seed"]), "env_steps": step, "robot_minutes": step / (report["fps"] * 60.0),
+                    "episodes": int(report["episodes"]), "success": report["success_rate"], "commit": commit})
+    return out
+
+
+def merge(existing: list[dict], new: list[dict]) -> list[dict]:
+    """``existing`` with ``new`` added, a new record replacing one of the same job and env step."""
+    keys = {(r["job"], r["env_steps"]) for r in new}
+    return [r for r in existing if (r["job"], r["env_steps"]) not in keys] + new
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("folders", nargs="+")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--commit", required=True)
+    args = ap.parse_args()
+    new = [r for folder in args.folders for r in records(folder, args.commit)]
+    if not new:
+        print(f"no <job>_eval40_<step>.json report in {args.folders}", file=sys.stderr)
+        sys.exit(2)
+    existing = json.load(open(args.out)) if os.path.exists(args.out) else []
+    merged = merge(existing, new)
+    with open(args.out, "w") as f:
+        json.dump(merged, f, indent=1)
+    for r in new:
+        print(f"{r['job']:28s} {r['robot_minutes']:6.1f} robot-min  success {r['success']:.3f} ({r['episodes']} episodes)")
+
+
+if __name__ == "__main__":
+    main()

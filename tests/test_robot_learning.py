@@ -1,0 +1,44 @@
+"""bench/robot_learning.py: evaluation reports of the Franka GPU jobs -> robot_learning.json records."""
+
+import json
+import os
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCRIPT = os.path.join(ROOT, "bench", "robot_learning.py")
+
+
+def _report(folder, name, success, fps=10):
+    with open(os.path.join(folder, name), "w") as f:
+        json.dump({"algo": "rlpd", "task": "robot_peg_insertion", "episodes": 40.0, "success_rate": success,
+                   "fps": fps}, f)
+
+
+def test_reports_become_records_and_a_rerun_replaces_its_own(tmp_path):
+    runs, out = tmp_path / "runs", tmp_path / "robot_learning.json"
+    runs.mkdir()
+    _report(runs, "rlpd_peg_images_s0_eval40_3003.json", 0.5)
+    _report(runs, "rlpd_peg_images_asym_s2_eval40_6000.json", 0.75)
+    _report(runs, "rlpd_peg_s1_eval40_1200.json", 0.25, fps=20)
+    (runs / "rlpd_peg_s1_summary.json").write_text("{}")  # not a report
+    cmd = [sys.executable, SCRIPT, str(runs), "--out", str(out), "--commit", "abc"]
+    subprocess.run(cmd, check=True, capture_output=True)
+    recs = {(r["job"], r["env_steps"]): r for r in json.loads(out.read_text())}
+    assert set(recs) == {("rlpd_peg_images_s0", 3003), ("rlpd_peg_images_asym_s2", 6000), ("rlpd_peg_s1", 1200)}
+    img = recs[("rlpd_peg_images_s0", 3003)]
+    assert (img["observation"], img["asymmetric"], img["seed"], img["success"]) == ("images", False, 0, 0.5)
+    assert abs(img["robot_minutes"] - 3003 / 600) < 1e-9 and img["episodes"] == 40
+    assert recs[("rlpd_peg_images_asym_s2", 6000)]["asymmetric"] is True
+    state = recs[("rlpd_peg_s1", 1200)]
+    assert state["observation"] == "state" and state["robot_minutes"] == 1.0  # 1200 steps at 20 Hz
+    _report(runs, "rlpd_peg_images_s0_eval40_3003.json", 0.9)
+    subprocess.run(cmd, check=True, capture_output=True)
+    again = json.loads(out.read_text())
+    assert len(again) == 3 and [r["success"] for r in again if r["job"] == "rlpd_peg_images_s0"] == [0.9]
+
+
+def test_a_folder_without_reports_exits_2(tmp_path):
+    out = subprocess.run([sys.executable, SCRIPT, str(tmp_path), "--out", str(tmp_path / "o.json"), "--commit", "x"],
+                         capture_output=True, text=True)
+    assert out.returncode == 2 and "no <job>_eval40_<step>.json report" in out.stderr
