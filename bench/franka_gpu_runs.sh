@@ -1,8 +1,8 @@
 # The README's Franka GPU commands (RLPD / SAC, peg insertion / pick-and-place) as named jobs run side by side on
 # one GPU machine, each followed by 40-episode evaluations of its last three checkpoints; logs, compacted metrics
 # (bench/compact_metrics.py) and evaluations go to $OUT. On the GPU machine, after bench/device_setup.sh:
-#   JOB_TIMEOUT=360 COMMIT=$(git rev-parse --short HEAD) bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
-# (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 400 in a 10-minute call)
+#   JOB_TIMEOUT=360 COMMIT=<this checkout's commit> bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
+# (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 360 in a 10-minute call: 400 ran past 560 s)
 # JOB = rlpd_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
 #       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN; SPEED (default 10) sets --speed.
 # The image jobs: front + wrist cameras at 64 px, 2 frames each, DrQ's encoder; the critic reads the same images and
