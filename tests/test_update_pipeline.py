@@ -11,14 +11,14 @@ def _counting_update(started: threading.Event, release: threading.Event):
     def update(state, batch):
         started.set()
         release.wait(5)
-        return state + batch, {"loss": float(batch) if batch >= 0 else math.nan}
+        return state + batch, {"loss": float(batch) if batch >= 0 else math.nan}, {"w": state + batch}
     return update
 
 
 def test_calls_run_in_order_on_the_newest_state_one_call_ahead():
     thread = LearnerThread("jax")
     started, release = threading.Event(), threading.Event()
-    pipe = UpdatePipeline(thread, _counting_update(started, release), lambda s: {"w": s}, 0, depth=2)
+    pipe = UpdatePipeline(thread, _counting_update(started, release), 0, depth=2)
     pipe.submit(1)
     assert not pipe.full
     pipe.submit(10)
@@ -37,7 +37,7 @@ def test_a_non_finite_result_brings_no_weights():
     thread = LearnerThread("jax")
     started, release = threading.Event(), threading.Event()
     release.set()
-    pipe = UpdatePipeline(thread, _counting_update(started, release), lambda s: {"w": s}, 5, depth=1)
+    pipe = UpdatePipeline(thread, _counting_update(started, release), 5, depth=1)
     pipe.submit(-1)
     scalars, _, host = pipe.result(threading.Event())
     assert math.isnan(scalars["loss"]) and host is None
@@ -47,7 +47,7 @@ def test_a_non_finite_result_brings_no_weights():
 def test_cancel_drops_the_queued_calls_and_keeps_the_last_finished_state():
     thread = LearnerThread("jax")
     started, release = threading.Event(), threading.Event()
-    pipe = UpdatePipeline(thread, _counting_update(started, release), lambda s: s, 0, depth=2)
+    pipe = UpdatePipeline(thread, _counting_update(started, release), 0, depth=2)
     pipe.submit(1)
     pipe.submit(10)
     assert started.wait(5)

@@ -207,10 +207,11 @@ class Prefetcher:
 class UpdatePipeline:
     """The learner's state and its updates, queued on a :class:`LearnerThread` up to ``depth`` calls ahead.
 
-    ``submit(batch)`` queues one update of the newest state and returns at once; ``result(stop, grace_s)``
-    waits for the oldest queued call and returns its scalars (floats: the learner thread waits for the update),
-    the seconds the update took on that thread, and the new weights on the host (``weights(state)``) when every
-    scalar is finite, else None. With ``depth`` 2 the loop queues call k+1 before it reads call k's results, so
+    ``update(state, batch) -> (state, scalars, host weights)`` is one call (the scalars as floats and the new
+    weights on the host, in one transfer: the learner thread waits for the update). ``submit(batch)`` queues one
+    update of the newest state and returns at once; ``result(stop, grace_s)`` waits for the oldest queued call and
+    returns its scalars, the seconds it took on that thread, and its host weights when every scalar is finite,
+    else None. With ``depth`` 2 the loop queues call k+1 before it reads call k's results, so
     the device never waits for the loop's host work between calls (logging, publishing weights, counting);
     the loop then sees a call's results one call late and publishes the weights of the call it reads. Depth 1
     (serial runs) is one call at a time, as a plain loop. ``drain`` waits for every queued call (before an
@@ -218,11 +219,11 @@ class UpdatePipeline:
     returns the state the loop may save (a call already running finishes in the background, its result dropped).
     """
 
-    def __init__(self, thread: LearnerThread, update: Callable[[Any, Any], tuple[Any, dict[str, float]]],
-                 weights: Callable[[Any], Any], state: Any, depth: int):
+    def __init__(self, thread: LearnerThread, update: Callable[[Any, Any], tuple[Any, dict[str, float], Any]],
+                 state: Any, depth: int):
         if depth < 1:
             raise ValueError(f"UpdatePipeline: depth must be >= 1, got {depth}")
-        self._thread, self._update, self._weights, self.depth = thread, update, weights, depth
+        self._thread, self._update, self.depth = thread, update, depth
         self._state = state
         self._lock = threading.Lock()
         self._cancelled = False
@@ -249,10 +250,10 @@ class UpdatePipeline:
                 return {}, 0.0, None
             state = self._state
         t0 = time.perf_counter()
-        state, scalars = self._update(state, batch)
+        state, scalars, host = self._update(state, batch)
         seconds = time.perf_counter() - t0
-        finite = all(math.isfinite(v) for v in scalars.values())
-        host = self._weights(state) if finite else None
+        if not all(math.isfinite(v) for v in scalars.values()):
+            host = None
         with self._lock:
             if not self._cancelled:
                 self._state = state
