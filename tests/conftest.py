@@ -24,6 +24,23 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
     atexit.register(shutil.rmtree, _JAX_CACHE, True)
 
+# `make test` hands whole files to its workers (pytest-xdist's loadfile) in collection order (pyproject's
+# --no-loadscope-reorder: xdist's default order, most tests first, left the files of one or two long tests, learning
+# runs and MJX compiles, for the end, one of them running alone for ~60 s). The files that took 25 s or more are
+# collected first, longest first (wall seconds in a whole `make test`, docs/dev/TESTING.md), so short files are left
+# for the end.
+FIRST = ("test_rlpd_experiments.py", "test_offpolicy_training.py", "test_ray_rollouts.py", "test_mjx_allegro_parity.py",
+         "test_pixel_learning.py", "test_mjx_walking_parity.py", "test_mjx_training.py", "test_robot_runtime.py",
+         "test_experiments.py", "test_mlx_only_install.py", "test_sacflow_training.py", "test_flow_experiments.py",
+         "test_notebooks.py", "test_hora_him.py", "test_play_export.py", "test_mjx_parity.py", "test_sharding.py",
+         "test_stop.py", "test_compute_dtype.py", "test_hgdagger.py", "test_training.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(FIRST)))
+
+
 _SHM = "/dev/shm"
 _PREFIX = "unilab_"
 

@@ -88,10 +88,13 @@ def test_sac_td3_learn_cartpole(tmp_path, algo, script, steps):
 # Measured at 500k env steps (~2k gradient steps), seeds 0 (this test), 1, 2: FastSAC 191, 178, 190;
 # FlashSAC 182, 198, 185 (both pass ~150 around 300-400k). Threshold 80: random ~35, observed minimum 178.
 # Test runtime: ~20-25 s each on an idle VM, 38-47 s with other jobs on the 2 cores.
-# The FastSAC run is repeated with the replay mirrored in (here: CPU) JAX memory and sampled there, the path
-# GPU learners take by default (seed 0: 190).
-@pytest.mark.parametrize("algo,recipe,on_device", [("fastsac", FASTSAC_TINY, "off"), ("flashsac", FLASHSAC_TINY, "off"),
-                                                   ("fastsac", FASTSAC_TINY, "on")])
+# FastSAC learns with the replay mirrored in (here: CPU) JAX memory and sampled there, the path GPU learners
+# take by default; FlashSAC, SAC and TD3 sample on the host. Remeasured with the mirror (later session, VM shared):
+# seeds 1-3: 116, 133, 144 (seed 0: 190), and seed 1 sampled on the host: 100 (178 when first measured above):
+# the spread is wider than the three seeds above said; the threshold holds a margin of 20 over the lowest seen.
+# A third run, FastSAC sampled on the host, checked nothing these do not: the mirror samples exactly the
+# rings' valid rows (tests/runtime/test_device_replay.py), the host sampler feeds the other three learners.
+@pytest.mark.parametrize("algo,recipe,on_device", [("fastsac", FASTSAC_TINY, "on"), ("flashsac", FLASHSAC_TINY, "off")])
 def test_fastsac_flashsac_improve_on_cartpole(tmp_path, algo, recipe, on_device):
     config, summary, rows = _train(tmp_path, algo, recipe, 500_000, replay_on_device=on_device)
     _check_replay_loop(config, summary, rows, 500_000)
