@@ -60,7 +60,8 @@ def main() -> None:
     with open(args.out, "w") as f:
         json.dump(merged, f, indent=1)
     for r in new:
-        print(f"{r['job']:28s} {r['robot_minutes']:6.1f} robot-min  success {r['success']:.3f} ({r['episodes']} episodes)")
+        print(f"{r['job']:28s} {r['robot_minutes']:6.1f} robot-min  success {r['success']:.3f} "
+              f"({r['episodes']} episodes)")
 
 
 if __name__ == "__main__":
