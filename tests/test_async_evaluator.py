@@ -58,3 +58,28 @@ def test_close_with_cancel_drops_the_waiting_evaluation():
 
 def test_close_without_evaluations_returns_nothing():
     assert AsyncEvaluator(_SlowTrainer()).close() == {}
+
+
+class _InterruptingTrainer(_SlowTrainer):
+    """Robots that make protective stops: the evaluation of step 2 is interrupted past its restarts."""
+
+    def evaluate(self, weights, seed, stop=None):
+        from tasks.base import StepInterrupted
+
+        if weights["step"] == 2:
+            raise StepInterrupted("tcp://robot: RobotEstopped: protective stop", None, None)
+        return super().evaluate(weights, seed, stop)
+
+
+def test_an_evaluation_the_robots_interrupt_is_dropped_and_ends_no_run():
+    tr = _InterruptingTrainer()
+    tr.release.set()
+    ev = AsyncEvaluator(tr)
+    _submit(ev, 1)
+    deadline = time.time() + 10
+    while not tr.logged and time.time() < deadline:  # step 1 done before step 2 is submitted (not replaced)
+        time.sleep(0.01)
+    _submit(ev, 2)
+    last = ev.close()
+    assert ev.interrupted == 1 and last["eval/return"] == 1.0  # the newest finished evaluation stands
+    assert [s for s, _ in tr.logged] == [1]  # nothing logged for the dropped one

@@ -266,7 +266,9 @@ class AsyncEvaluator:
     At most one evaluation waits behind the running one: a newer snapshot replaces a waiting one (an
     evaluation slower than ``--eval_every`` would otherwise queue without bound and hold the end of
     the run for minutes); ``skipped`` counts the replaced ones. ``close(cancel=True)`` (an interrupted
-    run) drops the waiting one.
+    run) drops the waiting one. An evaluation that robot tasks interrupt more often than ``run_episodes``
+    starts over (protective stops, lost robots) is dropped with a warning (``interrupted`` counts them): it
+    ends no run.
     """
 
     def __init__(self, trainer: Any, stop: threading.Event | None = None):
@@ -277,6 +279,7 @@ class AsyncEvaluator:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eval")
         self._futures: list[Any] = []
         self.skipped = 0
+        self.interrupted = 0  # evaluations the robots interrupted past MAX_EVAL_RESTARTS (dropped, logged)
 
     def submit(self, weights: dict, counters: dict[str, int], wall_s: float) -> None:
         if self._futures and self._futures[-1].cancel():  # still waiting: replace it with the newer snapshot
@@ -286,9 +289,17 @@ class AsyncEvaluator:
                         "(%d skipped so far)", self.skipped)
         self._futures.append(self._pool.submit(self._run, weights, counters, wall_s))
 
-    def _run(self, weights: dict, counters: dict[str, int], wall_s: float) -> dict[str, float]:
+    def _run(self, weights: dict, counters: dict[str, int], wall_s: float) -> dict[str, float] | None:
+        from tasks.base import StepInterrupted
+
         tr = self._trainer
-        result = tr.evaluate(weights, seed=counters["updates"], stop=self._stop)
+        try:
+            result = tr.evaluate(weights, seed=counters["updates"], stop=self._stop)
+        except StepInterrupted as e:  # robots that stopped the episodes more than run_episodes starts them over
+            self.interrupted += 1
+            log.warning("evaluation at env step %d dropped: the robots interrupted it %d times (%s)",
+                        counters["env_steps"], MAX_EVAL_RESTARTS + 1, e)
+            return None
         result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0,
                        "eval/skipped": float(self.skipped)})
         tr.logger.log(counters["env_steps"], result)
@@ -299,5 +310,6 @@ class AsyncEvaluator:
         """Waits for the running evaluation (and the waiting one unless ``cancel``; a stopped run's
         evaluation ends at its next step); returns the newest finished result ({} if none finished)."""
         self._pool.shutdown(wait=True, cancel_futures=cancel)
-        done = [f for f in self._futures if not f.cancelled() and not isinstance(f.exception(), StopRequested)]
+        done = [f for f in self._futures if not f.cancelled() and not isinstance(f.exception(), StopRequested)
+                and f.result() is not None]
         return done[-1].result() if done else {}
