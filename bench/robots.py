@@ -25,9 +25,14 @@ import time
 
 import numpy as np
 
-from unilab_jax.robots.client import RobotClient
-from unilab_jax.robots.experts import PAIRS, evaluate_expert
-from unilab_jax.robots.gl import find_gl_backend
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if REPO not in sys.path:  # bench.machine, when run as a script
+    sys.path.insert(0, REPO)
+
+from bench.machine import cpu_model  # noqa: E402
+from unilab_jax.robots.client import RobotClient  # noqa: E402
+from unilab_jax.robots.experts import PAIRS, evaluate_expert  # noqa: E402
+from unilab_jax.robots.gl import find_gl_backend  # noqa: E402
 
 HOLD = np.array([0.0, 0, 0, 0, 0, 0, -1.0], dtype=np.float32)
 PARTS = ("step", "render", "experts")
@@ -72,12 +77,7 @@ print(json.dumps({"gl_renderer": gl, "rows": rows}))
 def machine() -> dict:
     import mujoco
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
-    except OSError:
-        pass
+    cpu = cpu_model()
     try:
         gpus = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=30).stdout.split("\n")
     except (OSError, subprocess.TimeoutExpired):

@@ -41,6 +41,7 @@ if REPO not in sys.path:
 
 from bench.learner_update import SPEC as GO1  # noqa: E402  (Go1 sizes: actor 48, critic 123, 12 actions)
 from bench.learner_update import _replay_batch  # noqa: E402
+from bench.machine import cpu_model  # noqa: E402
 from unilab_jax import algos  # noqa: E402
 from unilab_jax.config import apply_overrides  # noqa: E402
 
@@ -48,12 +49,7 @@ from unilab_jax.config import apply_overrides  # noqa: E402
 def machine_info() -> dict:
     import jax
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
-    except OSError:
-        pass
+    cpu = cpu_model()
     return {"hostname": socket.gethostname(), "date": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             "cpu_model": cpu, "cpu_count": os.cpu_count(), "python": platform.python_version(),
             "jax": jax.__version__, "jax_backend": jax.default_backend(),

@@ -49,6 +49,8 @@ if "MENAGERIE_ROOT" not in os.environ and os.path.isdir(_robots):
 
 import numpy as np  # noqa: E402
 
+from bench.machine import cpu_model  # noqa: E402
+
 
 def parse_args(argv=None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -79,15 +81,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 def machine_info() -> dict:
     import mujoco
 
-    cpu = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    cpu = cpu_model()
     return {
         "hostname": socket.gethostname(),
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),

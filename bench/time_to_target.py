@@ -60,10 +60,14 @@ import sys
 import time
 from typing import Any
 
-from unilab_jax.metrics import WALKING
-
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
+if REPO not in sys.path:  # bench.machine, when run as a script
+    sys.path.insert(0, REPO)
+
+from bench.machine import cpu_model  # noqa: E402
+from unilab_jax.metrics import WALKING  # noqa: E402
+
 DEFAULT_OUT = os.path.join(HERE, "results", "time_to_target.json")
 DEFAULT_MD = os.path.join(HERE, "results", "time_to_target.md")
 
@@ -192,12 +196,7 @@ def source_digest() -> str:
 def machine_info() -> dict[str, Any]:
     """Host, CPU, GPU (``nvidia-smi``) and versions; jax is imported but not initialised, so this process
     takes no GPU memory from the runs."""
-    cpu = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
-    except OSError:
-        pass
+    cpu = cpu_model()
     versions: dict[str, str | None] = {"python": platform.python_version()}
     for mod in ("numpy", "jax", "jaxlib", "mujoco", "optax"):
         try:
