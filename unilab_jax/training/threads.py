@@ -214,8 +214,8 @@ class UpdatePipeline:
     else None. With ``depth`` 2 the loop queues call k+1 before it reads call k's results, so
     the device never waits for the loop's host work between calls (logging, publishing weights, counting);
     the loop then sees a call's results one call late and publishes the weights of the call it reads. Depth 1
-    (serial runs) is one call at a time, as a plain loop. ``drain`` waits for every queued call (before an
-    evaluation or a checkpoint reads ``state``); ``cancel`` drops the queued calls that have not started and
+    (serial runs) is one call at a time, as a plain loop. Read ``state`` once every queued call's result was
+    read (before an evaluation or a checkpoint); ``cancel`` drops the queued calls that have not started and
     returns the state the loop may save (a call already running finishes in the background, its result dropped).
     """
 
@@ -231,7 +231,7 @@ class UpdatePipeline:
 
     @property
     def state(self) -> Any:
-        """The newest state; read it after ``drain`` (a queued call may otherwise replace or donate it)."""
+        """The newest state; read it once no call is queued (a queued call may otherwise replace or donate it)."""
         with self._lock:
             return self._state
 
@@ -266,10 +266,6 @@ class UpdatePipeline:
         """The oldest queued call's (scalars, update seconds, host weights or None); :class:`StopRequested`
         once ``stop`` is set (after ``grace_s`` more seconds without a result)."""
         return wait_result(self._queued.pop(0), stop, grace_s)
-
-    def drain(self, stop: threading.Event, grace_s: float = 0.0) -> list[tuple[dict[str, float], float, Any]]:
-        """Every queued call's results, oldest first."""
-        return [self.result(stop, grace_s) for _ in range(len(self._queued))]
 
     def cancel(self) -> Any:
         """Drops the calls not yet started; returns the state of the last call that finished."""
