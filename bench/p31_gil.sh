@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Issue 31 on the 1-GPU machine: what the learner process's other Python threads cost the learner thread (the GIL).
+# FastSAC Go1 (fastsac_async, SEED) once per variant, MAXS seconds each; per run: calls/s and the learner thread's
+# seconds per call (perf/update_s) between 40 s and the end, and the time to walking if reached.
+#   base      as the recipe runs
+#   noeval    no evaluation during the run (--eval_every past the budget): the evaluator thread's share
+#   swi       the interpreter's GIL switch interval 0.5 ms instead of 5 ms (sys.setswitchinterval, via sitecustomize)
+#   VARIANTS="base noeval swi" SEED=0 MAXS=110 bash bench/p31_gil.sh
+set -u
+OUT=${OUT:-/tmp/p31_gil}; mkdir -p "$OUT/metrics"
+ROBOTS="unitree_go1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
+head -3 "$OUT/setup.txt"
+mkdir -p /tmp/swi && echo 'import sys; sys.setswitchinterval(0.0005)' > /tmp/swi/sitecustomize.py
+for v in ${VARIANTS:-base noeval swi}; do
+  extra=(); pp=$PYTHONPATH
+  [ "$v" = noeval ] && extra=(--extra=--eval_every=1000000000)
+  [ "$v" = swi ] && pp=/tmp/swi:$PYTHONPATH
+  PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" --max_seconds "${MAXS:-110}" \
+    --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$v.json" "${extra[@]}" 2>&1 \
+    | grep -v -i warning | tail -2 | sed "s/^/$v: /"
+  run=$(ls -td /tmp/time_to_target_runs/fastsac_async_s${SEED:-0}_* | head -1)
+  python3 - "$run/metrics.jsonl" "$v" <<'PY'
+import json, sys
+rows = [json.loads(line) for line in open(sys.argv[1])]
+calls = [r for r in rows if "perf/update_s" in r and r.get("time/wall_s", 0) >= 40]
+if len(calls) > 1:
+    span = calls[-1]["time/wall_s"] - calls[0]["time/wall_s"]
+    upd = sorted(r["perf/update_s"] for r in calls)
+    print(f"{sys.argv[2]}: calls/s {(len(calls) - 1) / span:.1f} over {span:.0f} s, perf/update_s median "
+          f"{upd[len(upd) // 2] * 1e3:.1f} ms, last utd {calls[-1].get('perf/utd', float('nan')):.5f}")
+PY
+done
