@@ -81,6 +81,9 @@ class StepInterrupted(Exception):
         super().__init__(reason)
         self.obs, self.critic_obs = obs, critic_obs
 
+    def __reduce__(self) -> tuple:  # pickled whole: an evaluation process raises it to the trainer
+        return type(self), (str(self), self.obs, self.critic_obs)
+
 
 def _nothing() -> None:
     return None

@@ -83,3 +83,37 @@ def test_an_evaluation_the_robots_interrupt_is_dropped_and_ends_no_run():
     last = ev.close()
     assert ev.interrupted == 1 and last["eval/return"] == 1.0  # the newest finished evaluation stands
     assert [s for s, _ in tr.logged] == [1]  # nothing logged for the dropped one
+
+
+def test_an_evaluation_process_gives_the_thread_s_result_and_stops_when_asked(tmp_path):
+    import numpy as np
+    import pytest
+
+    from tasks.base import StepInterrupted
+    from unilab_jax import algos
+    from unilab_jax.config import apply_overrides
+    from unilab_jax.runtime import StopRequested
+    from unilab_jax.training.evaluation import EvaluationProcess, evaluate_policy
+    from unilab_jax.training.trainer import RunConfig, Trainer
+
+    module = algos.get("ppo")
+    run = RunConfig(algo="ppo", task="cartpole_balance", logdir=str(tmp_path), eval_envs=3)
+    trainer = Trainer(run, module, apply_overrides(module.Config(), {"actor_hidden": (8,), "critic_hidden": (8,)}), {})
+    weights = trainer._numpy_weights(trainer.learner.init(trainer.xp.random.key(0)))
+    job = trainer.evaluation_job(weights, seed=4)
+    process = EvaluationProcess()
+    try:
+        # the same deterministic episodes in the child as in this process
+        assert process.evaluate(job) == evaluate_policy(**job) == trainer.evaluate(weights, seed=4)
+        stop = threading.Event()
+        stop.set()
+        with pytest.raises(StopRequested):
+            process.evaluate(job, stop)
+    finally:
+        process.close()
+    # a robot task's interruption reaches the trainer's evaluator from the child whole
+    e = StepInterrupted("tcp://robot: lost", np.ones(2), np.zeros(3))
+    import pickle
+
+    back = pickle.loads(pickle.dumps(e))
+    assert str(back) == "tcp://robot: lost" and back.obs.tolist() == [1, 1] and back.critic_obs.shape == (3,)

@@ -14,8 +14,8 @@ from unilab_jax import xp as shim
 from unilab_jax.algos.hora import student as hora_student
 from unilab_jax.algos.hora import teacher as hora_teacher
 from unilab_jax.algos.ppo import him_ppo
-from unilab_jax.apps.hora_cli import evaluate_policy
 from unilab_jax.config import apply_overrides
+from unilab_jax.training.evaluation import evaluate_policy
 from unilab_jax.training.trainer import RunConfig, Trainer
 
 jax = pytest.importorskip("jax")

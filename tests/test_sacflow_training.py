@@ -9,7 +9,8 @@ The policy is good by 200k in every run but dips now and then (109-140 in 5 of t
 a fresh-clone CI run ended on 129), and more under load: a fresh-clone CI run with three other jobs on the
 2 cores (load 8) evaluated [181 181 96 118 163]. A single evaluation is no threshold: the test asserts the
 best evaluation (lowest seen 181) and the mean of the evaluations from 200k on (lowest seen 139; 165-199
-on an idle VM), both far above a random policy's 35.
+on an idle VM), both far above a random policy's 35. The evaluations run in their own process
+(``eval_process="on"``, the path of a learner on an accelerator), so this run also checks that path end to end.
 """
 
 import importlib.util
@@ -30,7 +31,7 @@ def test_sacflow_learns_cartpole(tmp_path):
     module = algos.get("sacflow")
     config = apply_overrides(module.Config(), {**recipe.RECIPE, "flow_steps": 2})
     run = RunConfig(algo="sacflow", task="cartpole_balance", num_workers=2, envs_per_worker=16, total_steps=450_000,
-                    seed=0, logdir=str(tmp_path / "run"), eval_envs=16, eval_every=100_000)
+                    seed=0, logdir=str(tmp_path / "run"), eval_envs=16, eval_every=100_000, eval_process="on")
     summary = Trainer(run, module, config, {}).train()
     rows = [json.loads(line) for line in open(os.path.join(summary["logdir"], "metrics.jsonl"))]
     assert summary["updates"] > 100 and not summary["interrupted"]

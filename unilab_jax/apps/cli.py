@@ -84,6 +84,8 @@ flags.DEFINE_integer("replay_chunk_rows", 0, "with --replay_dir: transitions per
 flags.DEFINE_enum("replay_on_device", "auto", ["auto", "on", "off"], "off-policy, jax learner: keep a copy of the "
                   "replay rings in accelerator memory and sample minibatches there (auto: on unless JAX runs on the "
                   "CPU or --replay_dir is set)")
+flags.DEFINE_enum("eval_process", "auto", ["auto", "on", "off"], "run the evaluations' episodes in a process of "
+                  "their own, off the learner process (auto: when the learner runs on an accelerator and not --serial)")
 flags.DEFINE_enum("utd_mode", "hold", ["hold", "free"], "off-policy: hold pauses the workers when the learner falls "
                   "more than --utd_window env steps behind the recipe's update-to-data ratio; free never pauses them")
 flags.DEFINE_integer("utd_window", 0, "with --utd_mode=hold: env steps the workers may run ahead of the ratio "
@@ -108,8 +110,8 @@ flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatabl
 
 # The flags every run reads, and those only off-policy runs read (--help lists each script's own).
 RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker", "seed", "logdir", "resume",
-             "eval_every", "eval_envs", "checkpoint_every", "video_every", "serial", "pin_cpus", "devices",
-             "wandb_project", "profile_dir", "profile_start", "profile_updates", "config", "task_config")
+             "eval_every", "eval_envs", "eval_process", "checkpoint_every", "video_every", "serial", "pin_cpus",
+             "devices", "wandb_project", "profile_dir", "profile_start", "profile_updates", "config", "task_config")
 REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
                 "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
 
@@ -286,6 +288,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     run = RunConfig(algo=algo, task=task_name, platform=opts.platform, num_workers=opts.num_workers,
                     envs_per_worker=opts.envs_per_worker, total_steps=total, seed=opts.seed, logdir=logdir,
                     resume=opts.resume, eval_every=opts.eval_every, eval_envs=opts.eval_envs,
+                    eval_process=opts.eval_process,
                     checkpoint_every=opts.checkpoint_every, serial=opts.serial, replay_dir=opts.replay_dir,
                     replay_disk_gb=opts.replay_disk_gb, replay_hot_fraction=opts.replay_hot_fraction,
                     replay_chunk_rows=opts.replay_chunk_rows, replay_on_device=opts.replay_on_device,

@@ -24,13 +24,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import types
 from collections.abc import Mapping
 from typing import Any
 
 from absl import flags
 
 from unilab_jax.apps import cli
+from unilab_jax.training.evaluation import evaluate_policy
 
 FLAGS = flags.FLAGS
 flags.DEFINE_integer("teacher_steps", None, "env steps of stage 1, the privileged teacher (default: the script's)")
@@ -51,18 +51,6 @@ def _finished(logdir: str, budget: int) -> bool:
     with open(path) as f:
         summary = json.load(f)
     return not summary.get("interrupted", True) and summary.get("env_steps", 0) >= budget
-
-
-def evaluate_policy(algo_module: Any, weights: dict, task: str, overrides: Mapping[str, Any], num_envs: int,
-                    seed: int) -> dict[str, float]:
-    """The trainer's deterministic evaluation (same seeds, same metrics: ``eval/return``, and the walking
-    metric on locomotion tasks) of ``algo_module.act`` with ``weights``, outside a training run."""
-    from unilab_jax.training.trainer import Trainer
-
-    run = types.SimpleNamespace(task=task, eval_envs=num_envs)
-    probe = types.SimpleNamespace(run=run, task_overrides=dict(overrides), eval_overrides=dict(overrides),
-                                  spec=_spec(task, overrides), algo=algo_module)
-    return Trainer.evaluate(probe, weights, seed)
 
 
 def _plan(task: str, teacher_recipe: Mapping[str, Any], student_recipe: Mapping[str, Any],

@@ -42,7 +42,7 @@ from unilab_jax import algos, nets
 from unilab_jax import xp as shim
 from unilab_jax.checkpoint import Checkpointer
 from unilab_jax.fields import prior_fields, replay_fields
-from unilab_jax.metrics import WALKING, MetricLogger, ProgressBar
+from unilab_jax.metrics import MetricLogger, ProgressBar
 from unilab_jax.runtime.buffers import transition_layout
 from unilab_jax.runtime.pool import WorkerPool
 from unilab_jax.runtime.prior import load_prior
@@ -51,7 +51,7 @@ from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.runtime.spawn import cpu_placement
 from unilab_jax.runtime.weights import WeightPublisher
 from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
-from unilab_jax.training.evaluation import AsyncEvaluator, ClipRecorder, deterministic_policy, run_episodes
+from unilab_jax.training.evaluation import AsyncEvaluator, ClipRecorder, evaluate_policy
 from unilab_jax.training.profiling import ProfileWindow
 from unilab_jax.training.sources import DeferredBatch, ReplaySource, TrajectorySource
 from unilab_jax.training.threads import LearnerThread, Prefetcher, UpdatePipeline, stop_on_signals
@@ -87,6 +87,10 @@ class RunConfig:
     # Off-policy, JAX learner: mirror the rings in accelerator memory and sample there (training/device_replay.py).
     # "auto": on when JAX's default backend is not the CPU and there is no replay_dir; "on" / "off" force it.
     replay_on_device: str = "auto"
+    # Evaluations' episodes in a process of their own (training/evaluation.py EvaluationProcess), off the learner
+    # process's interpreter lock. "auto": when the learner runs on an accelerator (JAX not on the CPU, MLX on the
+    # GPU) and the run is not serial; "on" / "off" force it.
+    eval_process: str = "auto"
     # Off-policy: "hold" pauses the workers when the learner falls more than ``utd_window`` env steps behind
     # the recipe's update-to-data ratio (the same learning per env step on any machine); "free" lets them
     # run on (a learner slower than ``utd`` x the env rate then trains below the ratio). See ReplaySource.
@@ -125,7 +129,7 @@ class RunConfig:
             if getattr(self, name) < 0:
                 raise ValueError(f"RunConfig: {name} must be >= 0, got {getattr(self, name)!r}")
         for name, choices in (("platform", ("jax", "mlx")), ("utd_mode", ("hold", "free")),
-                              ("replay_on_device", ("auto", "on", "off"))):
+                              ("replay_on_device", ("auto", "on", "off")), ("eval_process", ("auto", "on", "off"))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"RunConfig: {name} must be one of {choices}, got {getattr(self, name)!r}")
 
@@ -263,29 +267,38 @@ class Trainer:
         return prior
 
     # -- evaluation ------------------------------------------------------------------------------
-    def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
-        """Deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the
-        task could build, e.g. the robots that answer); raises :class:`StopRequested` when ``stop`` is set
-        before it ends."""
+    def evaluation_job(self, weights: dict, seed: int) -> dict[str, Any]:
+        """The arguments of ``evaluation.evaluate_policy`` for this run's evaluation of ``weights``: the
+        deterministic policy, one full episode in each of ``eval_envs`` environments (or as many as the task could
+        build, e.g. the robots that answer)."""
+        return {"algo": self.algo.__name__, "weights": weights, "task": self.run.task,
+                "overrides": self.eval_overrides, "num_envs": self.run.eval_envs, "seed": seed}
 
-        task = tasks.make(self.run.task, num_envs=self.run.eval_envs, seed=10_000 + seed,
-                          overrides=self.eval_overrides)
-        if hasattr(task, "set_operator"):  # the policy alone: no operator interventions while evaluating
-            task.set_operator("off")
-        try:  # on locomotion tasks with the walking metric: velocity tracking, independent of reward scaling
-            _, stats = run_episodes(task, deterministic_policy(self.algo, weights, task), stop=stop)
-        finally:
-            task.close()
-        result = {f"eval/{k}": v for k, v in stats.items()}
-        if "tracking_error" in stats:  # locomotion: the walking criterion on the same episodes
-            result["eval/walking"] = float(WALKING.met(stats))  # 1: it walks
-        return result
+    def evaluate(self, weights: dict, seed: int, stop: threading.Event | None = None) -> dict[str, float]:
+        """This run's evaluation of ``weights`` in this process (``evaluation.evaluate_policy``); raises
+        :class:`StopRequested` when ``stop`` is set before it ends."""
+        return evaluate_policy(**self.evaluation_job(weights, seed), stop=stop)
+
+    def _eval_in_process(self) -> bool:
+        """Whether evaluations run in a process of their own (``RunConfig.eval_process``)."""
+        mode = self.run.eval_process  # one of auto/on/off (RunConfig checks it)
+        if mode != "auto":
+            return mode == "on"
+        if self.run.serial:
+            return False
+        if self.run.platform == "jax":
+            import jax
+
+            return jax.default_backend() != "cpu"
+        import mlx.core as mx
+
+        return mx.default_device().type == mx.gpu
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
 
         run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
-        evaluator = AsyncEvaluator(self, stop)
+        evaluator = AsyncEvaluator(self, stop, in_process=self._eval_in_process())
         learner = LearnerThread(run.platform)
         state, counters = self._init_state()
         weights = nets.to_numpy(self.learner.weights(state))
