@@ -207,23 +207,29 @@ class Prefetcher:
 class UpdatePipeline:
     """The learner's state and its updates, queued on a :class:`LearnerThread` up to ``depth`` calls ahead.
 
-    ``update(state, batch) -> (state, scalars, host weights)`` is one call (the scalars as floats and the new
-    weights on the host, in one transfer: the learner thread waits for the update). ``submit(batch)`` queues one
-    update of the newest state and returns at once; ``result(stop, grace_s)`` waits for the oldest queued call and
-    returns its scalars, the seconds it took on that thread, and its host weights when every scalar is finite,
-    else None. With ``depth`` 2 the loop queues call k+1 before it reads call k's results, so
-    the device never waits for the loop's host work between calls (logging, publishing weights, counting);
-    the loop then sees a call's results one call late and publishes the weights of the call it reads. Depth 1
-    (serial runs) is one call at a time, as a plain loop. Read ``state`` once every queued call's result was
-    read (before an evaluation or a checkpoint); ``cancel`` drops the queued calls that have not started and
-    returns the state the loop may save (a call already running finishes in the background, its result dropped).
+    A call is two halves: ``update(state, batch) -> (state, out)`` runs on the learner thread and only dispatches
+    the work (on JAX it returns as soon as the update is queued on the device: ``out`` holds device arrays);
+    ``fetch(out) -> (scalars, host weights)`` brings the results to the host (waiting for the device) and runs in
+    the thread that reads the result (``result``), or on the learner thread too with ``fetch_on_thread`` (MLX,
+    whose arrays belong to the thread's stream). ``submit(batch)`` queues one update of the newest state and
+    returns at once; ``result(stop, grace_s)`` waits for the oldest queued call and returns its scalars, the
+    seconds its dispatch took on the learner thread, the seconds of its fetch, and its host weights when every
+    scalar is finite, else None. With ``depth`` 2 the loop queues call k+1 before it reads call k's results, so
+    the device never waits for host work between calls: call k+1 is queued on the device while call k's results
+    are copied, converted, published and logged (the loop sees a call's results one call late and publishes the
+    weights of the call it reads). Depth 1 (serial runs) is one call at a time, as a plain loop. Read ``state``
+    once every queued call's result was read (before an evaluation or a checkpoint); ``cancel`` drops the queued
+    calls that have not started and returns the state the loop may save (a call already running finishes in the
+    background, its result dropped).
     """
 
-    def __init__(self, thread: LearnerThread, update: Callable[[Any, Any], tuple[Any, dict[str, float], Any]],
-                 state: Any, depth: int):
+    def __init__(self, thread: LearnerThread, update: Callable[[Any, Any], tuple[Any, Any]],
+                 fetch: Callable[[Any], tuple[dict[str, float], Any]], state: Any, depth: int,
+                 fetch_on_thread: bool = False):
         if depth < 1:
             raise ValueError(f"UpdatePipeline: depth must be >= 1, got {depth}")
-        self._thread, self._update, self.depth = thread, update, depth
+        self._thread, self._update, self._fetch, self.depth = thread, update, fetch, depth
+        self._fetch_on_thread = fetch_on_thread
         self._state = state
         self._lock = threading.Lock()
         self._cancelled = False
@@ -244,28 +250,37 @@ class UpdatePipeline:
     def pending(self) -> int:
         return len(self._queued)
 
-    def _run(self, batch: Any) -> tuple[dict[str, float], float, Any]:
+    def _run(self, batch: Any) -> tuple[Any, float, float, bool]:
         with self._lock:
             if self._cancelled:
-                return {}, 0.0, None
+                return ({}, None), 0.0, 0.0, True
             state = self._state
         t0 = time.perf_counter()
-        state, scalars, host = self._update(state, batch)
+        state, out = self._update(state, batch)
         seconds = time.perf_counter() - t0
-        if not all(math.isfinite(v) for v in scalars.values()):
-            host = None
         with self._lock:
             if not self._cancelled:
                 self._state = state
-        return scalars, seconds, host
+        if not self._fetch_on_thread:
+            return out, seconds, 0.0, False
+        t1 = time.perf_counter()
+        return self._fetch(out), seconds, time.perf_counter() - t1, True
 
     def submit(self, batch: Any) -> None:
         self._queued.append(self._thread.submit(self._run, batch))
 
-    def result(self, stop: threading.Event, grace_s: float = 0.0) -> tuple[dict[str, float], float, Any]:
-        """The oldest queued call's (scalars, update seconds, host weights or None); :class:`StopRequested`
-        once ``stop`` is set (after ``grace_s`` more seconds without a result)."""
-        return wait_result(self._queued.pop(0), stop, grace_s)
+    def result(self, stop: threading.Event, grace_s: float = 0.0) -> tuple[dict[str, float], float, float, Any]:
+        """The oldest queued call's (scalars, dispatch seconds, fetch seconds, host weights or None);
+        :class:`StopRequested` once ``stop`` is set (after ``grace_s`` more seconds without a dispatched call)."""
+        out, seconds, fetch_s, fetched = wait_result(self._queued.pop(0), stop, grace_s)
+        if not fetched:
+            t0 = time.perf_counter()
+            out = self._fetch(out)
+            fetch_s = time.perf_counter() - t0
+        scalars, host = out
+        if not all(math.isfinite(v) for v in scalars.values()):
+            host = None
+        return scalars, seconds, fetch_s, host
 
     def cancel(self) -> Any:
         """Drops the calls not yet started; returns the state of the last call that finished."""

@@ -27,6 +27,7 @@ donation; on the CPU, where an update can take minutes, nothing is donated.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import logging
 import math
@@ -137,6 +138,19 @@ class RunConfig:
 def _learner_platform(platform: str) -> Any:
     """Backend used to convert numpy batches for the learner."""
     return shim.get(platform)
+
+
+def _device_copy(tree: Any) -> Any:
+    """A copy of a tree of JAX arrays in new device buffers (one jitted call, compiled once per structure)."""
+    return _copier()(tree)
+
+
+@functools.cache
+def _copier() -> Any:
+    import jax
+    import jax.numpy as jnp
+
+    return jax.jit(lambda t: jax.tree.map(jnp.copy, t))
 
 
 def _donated(tree: Any) -> bool:
@@ -356,14 +370,15 @@ class Trainer:
             # for the loop's host work (threads.UpdatePipeline); replay batches need no new weights. Trajectory
             # batches are collected with the newest weights, and serial runs are one deterministic sequence:
             # one call at a time.
-            pipe = UpdatePipeline(learner, self._update, state, depth=2 if replay and not run.serial else 1)
+            pipe = UpdatePipeline(learner, self._dispatch, self._fetch, state,
+                                  depth=2 if replay and not run.serial else 1, fetch_on_thread=run.platform == "mlx")
             queued: list[tuple[dict, float]] = []  # each queued call's batch stats and prefetch wait
             t_last, steps_last = time.time(), counters["env_steps"]
 
             def finish() -> None:
                 """Reads the oldest queued call's results: counts, checks, publishes and logs them."""
                 nonlocal t_last, steps_last
-                scalars, update_s, host = pipe.result(stop, self._STOP_GRACE_S)
+                scalars, update_s, fetch_s, host = pipe.result(stop, self._STOP_GRACE_S)
                 stats, wait_s = queued.pop(0)
                 t_publish = time.perf_counter()
                 counters["updates"] += 1
@@ -375,7 +390,7 @@ class Trainer:
                     counters["version"] += 1
                     (publisher.submit if publisher is not None else pool.publish)(host, counters["version"])
                 now = time.time()
-                scalars.update({"perf/learner_wait_s": wait_s, "perf/update_s": update_s,
+                scalars.update({"perf/learner_wait_s": wait_s, "perf/update_s": update_s, "perf/fetch_s": fetch_s,
                                 "perf/publish_s": time.perf_counter() - t_publish})
                 scalars.update(stats["scalars"])
                 scalars.update(source.pool_scalars())
@@ -491,15 +506,22 @@ class Trainer:
         log.warning("final checkpoint skipped: the update left running took the state's buffers; the last "
                     "checkpoint (env step %s) stands", ckpt.latest_step())
 
-    def _update(self, state: Any, batch: dict | DeferredBatch) -> tuple[Any, dict[str, float], dict]:
-        """One learner update (a device mirror's batch finished first, on this thread), its losses as floats and
-        the new weights on the host, both in one transfer (which waits for the update to finish; a transfer per
-        loss cost ~1 ms each in-run)."""
+    def _dispatch(self, state: Any, batch: dict | DeferredBatch) -> tuple[Any, Any]:
+        """One learner update, dispatched (a device mirror's batch finished first, on this thread): the new state
+        and (metrics, new weights) still on the device. On JAX the weights are copied on the device, so the next
+        update, which donates this state on accelerators, can be queued before they reach the host."""
         if isinstance(batch, DeferredBatch):
             batch = batch()
         state, metrics = self.learner.update(state, batch)
-        metrics, weights = nets.to_numpy((metrics, self.learner.weights(state)))
-        return state, {f"loss/{k}": float(v) for k, v in metrics.items()}, weights
+        out = (metrics, self.learner.weights(state))
+        return state, (_device_copy(out) if self.run.platform == "jax" else out)
+
+    @staticmethod
+    def _fetch(out: Any) -> tuple[dict[str, float], dict]:
+        """An update's losses as floats and its weights on the host, in one transfer (which waits for the
+        update to finish; a transfer per loss cost ~1 ms each in-run)."""
+        metrics, weights = nets.to_numpy(out)
+        return {f"loss/{k}": float(v) for k, v in metrics.items()}, weights
 
     def _hold_window(self, cfg: Any) -> int | None:
         """Env steps the replay workers may run ahead of ``utd``; None in "free" mode. The default, four
