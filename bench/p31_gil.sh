@@ -7,8 +7,6 @@
 #   noeval    no evaluation during the run (--eval_every past the budget): the evaluator thread's share
 #   swi       the interpreter's GIL switch interval 0.5 ms instead of 5 ms (sys.setswitchinterval, via sitecustomize)
 #   nocb      no XLA command buffers (--xla_gpu_enable_command_buffer=): the scan's steps as plain kernel launches
-#   cbwhile   the scan's loop inside XLA's command buffers too (WHILE, CONDITIONAL): one CUDA graph per call
-#   unroll    the learner's U steps unrolled (--config=unroll_steps=true): no device loop
 #   VARIANTS="base noeval swi" SEED=0 MAXS=110 bash bench/p31_gil.sh
 set -u
 OUT=${OUT:-/tmp/p31_gil}; mkdir -p "$OUT/metrics"
@@ -20,8 +18,6 @@ for v in ${VARIANTS:-base noeval swi}; do
   [ "$v" = noeval ] && extra=(--extra=--eval_every=1000000000)
   [ "$v" = swi ] && pp=/tmp/swi:$PYTHONPATH
   xf=${XLA_FLAGS:-}; [ "$v" = nocb ] && xf="$xf --xla_gpu_enable_command_buffer="
-  [ "$v" = cbwhile ] && xf="$xf --xla_gpu_enable_command_buffer=FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,WHILE,CONDITIONAL"
-  [ "$v" = unroll ] && extra=(--extra=--config=unroll_steps=true)
   XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" --max_seconds "${MAXS:-110}" \
     --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$v.json" "${extra[@]}" 2>&1 \
     | grep -v -i warning | tail -2 | sed "s/^/$v: /"

@@ -184,22 +184,3 @@ def test_learns_a_contextual_bandit(name):
     final = error(state)
     assert start > 0.5 and final < 0.1, f"{name}: action error {start:.3f} -> {final:.3f}; last metrics {metrics}"
     assert learner.trace_count == 1
-
-
-@pytest.mark.parametrize("name", ["td3", "fastsac"])
-def test_unrolled_steps_compute_the_looped_update(name):
-    """``unroll_steps`` changes how XLA runs a call's U steps (straight-line code instead of a device loop), not
-    what they compute: the same state and metrics from the same start and batch."""
-    mod, cfg, looped = _learner(name)
-    ucfg = dataclasses.replace(cfg, updates_per_call=2, unroll_steps=True)
-    if name == "td3":
-        unrolled = offpolicy_jax.TD3Learner(ucfg, SPEC, compiler_options=FAST_COMPILE)
-    else:
-        unrolled = offpolicy_jax.SACFamilyLearner(mod, ucfg, SPEC, compiler_options=FAST_COMPILE)
-    batch = _batch(np.random.default_rng(3), 2, terminated=0.0)
-    if name == "fastsac":  # the shared looped learner scans 10 steps: one of 2 steps compiled for the comparison
-        looped = offpolicy_jax.SACFamilyLearner(mod, dataclasses.replace(cfg, updates_per_call=2), SPEC,
-                                                compiler_options=FAST_COMPILE)
-    got = [learner.update(learner.init(jax.random.PRNGKey(5)), batch) for learner in (looped, unrolled)]
-    for a, b in zip(jax.tree_util.tree_leaves(_np(got[0])), jax.tree_util.tree_leaves(_np(got[1]))):
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)

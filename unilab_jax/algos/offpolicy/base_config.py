@@ -27,10 +27,6 @@ class OffPolicyConfig(SelfChecking):
     float32 accumulation, results, master weights, norms, softmax, C51 projection, log-probs, losses and
     optimizer: ``unilab_jax.xp``'s ``compute_dtype``) or "auto" (``learner_common.AUTO_COMPUTE_DTYPE``
     per backend: float32 on CPU). The MLX learners compute in float32 and refuse "bfloat16".
-    ``unroll_steps`` (JAX learners): the U steps as straight-line code instead of a device loop. XLA's GPU
-    backend drives a loop's steps from the host, so the learner thread waits for each step to run before the
-    call returns; unrolled, a call is queued whole and returns at once. Compile time grows (~2x for FastSAC's
-    U = 8 on the CPU).
     """
 
     actor_hidden: tuple[int, ...] = (256, 256)
@@ -50,7 +46,6 @@ class OffPolicyConfig(SelfChecking):
     max_grad_norm: float = 0.0  # 0 disables gradient clipping
     weight_decay: float = 0.0  # decoupled (AdamW) when > 0
     compute_dtype: str = "auto"
-    unroll_steps: bool = False
 
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""

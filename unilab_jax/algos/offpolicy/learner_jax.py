@@ -102,7 +102,7 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
         # XLA's CPU backend runs the encoder's convolutions and matmuls inside the scan's loop ~20x slower than
         # the same step unrolled (64x64x6 images, B = 32: 2.7 s vs 0.15 s per step), so on CPU image learners
         # unroll their U steps (still one compile; compile time grows with U).
-        self.unroll_steps = config.unroll_steps or (bool(self.image_shape) and jax.default_backend() == "cpu")
+        self.unroll_steps = bool(self.image_shape) and jax.default_backend() == "cpu"
         self._compile(compiler_options)
 
     def _update(self, state: SACState, batch: dict) -> tuple[SACState, dict]:
@@ -156,5 +156,5 @@ class TD3Learner(_Jitted, common.TD3Base):
 
         n = batch["reward"].shape[0]
         keys = jax.random.split(state.key, n + 1)
-        state, metrics = jax.lax.scan(step, state, (batch, keys[1:]), unroll=n if cfg.unroll_steps else 1)
+        state, metrics = jax.lax.scan(step, state, (batch, keys[1:]))
         return state._replace(key=keys[0]), common.td3_metrics(metrics)
