@@ -509,18 +509,12 @@ class Trainer:
     def _dispatch(self, state: Any, batch: dict | DeferredBatch) -> tuple[Any, Any]:
         """One learner update, dispatched (a device mirror's batch finished first, on this thread): the new state
         and (metrics, new weights) still on the device. On JAX the weights are copied on the device, so the next
-        update, which donates this state on accelerators, can be queued before they reach the host, and their copy
-        to the host starts at once (fetched after the next call was dispatched, it waited for that call to run)."""
+        update, which donates this state on accelerators, can be queued before they reach the host."""
         if isinstance(batch, DeferredBatch):
             batch = batch()
         state, metrics = self.learner.update(state, batch)
         out = (metrics, self.learner.weights(state))
-        if self.run.platform != "jax":
-            return state, out
-        out = _device_copy(out)
-        for leaf in tree_leaves(out):  # on its way to the host while the next call runs
-            leaf.copy_to_host_async()
-        return state, out
+        return state, (_device_copy(out) if self.run.platform == "jax" else out)
 
     @staticmethod
     def _fetch(out: Any) -> tuple[dict[str, float], dict]:
