@@ -6,6 +6,7 @@
 #   base      as the recipe runs
 #   noeval    no evaluation during the run (--eval_every past the budget): the evaluator thread's share
 #   swi       the interpreter's GIL switch interval 0.5 ms instead of 5 ms (sys.setswitchinterval, via sitecustomize)
+#   u16       16 gradient steps per learner call instead of the recipe's 8 (the same update-to-data ratio)
 #   nocb      no XLA command buffers (--xla_gpu_enable_command_buffer=): the scan's steps as plain kernel launches
 #   VARIANTS="base noeval swi" SEED=0 MAXS=110 bash bench/p31_gil.sh
 set -u
@@ -18,6 +19,7 @@ for v in ${VARIANTS:-base noeval swi}; do
   [ "$v" = noeval ] && extra=(--extra=--eval_every=1000000000)
   [ "$v" = swi ] && pp=/tmp/swi:$PYTHONPATH
   xf=${XLA_FLAGS:-}; [ "$v" = nocb ] && xf="$xf --xla_gpu_enable_command_buffer="
+  [ "$v" = u16 ] && extra=(--extra=--config=updates_per_call=16)
   XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" --max_seconds "${MAXS:-110}" \
     --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$v.json" "${extra[@]}" 2>&1 \
     | grep -v -i warning | tail -2 | sed "s/^/$v: /"
