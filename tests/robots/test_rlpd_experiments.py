@@ -35,10 +35,12 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     ~100 gradient steps at the image recipe's utd 0.5, ~25 learner calls, each logging the prior rows and the
     ensemble's spread) exercise what 2000 did, and 4 gradient steps per call, not the recipe's 16: on the CPU
     the image learner unrolls its steps, so the first call's compile grows with them (16: 47 s, 4: 14 s on the
-    2-core VM)."""
+    2-core VM). The cameras draw the arm's collision geometry (``camera_geometry=collision``): its visual meshes cost
+    ~15 ms a frame in software GL, ~25 CPU-s over this run's ~1900 frames, and are rendered in
+    tests/robots/test_image_obs.py."""
     logdir = tmp_path / "run"
     out = _script("rlpd_franka_peg.py", "--speed=20", "--total_steps=500", "--config", "updates_per_call=4",
-                  f"--logdir={logdir}", timeout=500)
+                  "--task_config=camera_geometry=collision", f"--logdir={logdir}", timeout=500)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "demonstrations: 20 episodes (" in out.stdout
     assert "image observation 32x32x12 uint8 (front,wrist x 2 frames)" in out.stdout
