@@ -90,7 +90,8 @@ class RobotTaskConfig:
     cameras: tuple[str, ...] = ()  # image observation from these cameras (see the module docstring); (): none
     image_size: int = 64  # pixels per side of each camera's frame (robot servers must render this size)
     frame_stack: int = 1  # frames per camera in the image observation (the last ones, oldest first)
-    # In-process robots only: what their cameras draw of the arm (visual meshes, or the ~10x cheaper collision shapes).
+    # In-process robots and the sim: servers a robot experiment starts: what their cameras draw of the arm (visual
+    # meshes, or the ~10x cheaper collision shapes).
     camera_geometry: str = "visual"
     timeout_s: float = 2.0  # a robot that does not answer a call within this (+ its period) is lost
     lease_s: float = 5.0

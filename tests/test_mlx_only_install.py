@@ -50,7 +50,8 @@ def mlx_venv(tmp_path_factory):
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     py = str(venv / "bin" / "python")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    out = _run([py, "-m", "pip", "install", f"{REPO}[mlx]"], env=env, timeout=900)
+    # --no-compile: pip byte-compiles every installed module otherwise (~4 CPU-s); the runs below compile what they use.
+    out = _run([py, "-m", "pip", "install", "--no-compile", f"{REPO}[mlx]"], env=env, timeout=900)
     if out.returncode != 0:
         text = out.stdout + out.stderr
         hit = NETWORK_FAILURE.search(text)

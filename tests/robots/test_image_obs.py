@@ -20,6 +20,8 @@ import tasks
 from unilab_jax import xp as shim
 from unilab_jax.apps import record
 from unilab_jax.fields import IMAGE_FIELDS, REPLAY_FIELDS, prior_fields, replay_fields
+from unilab_jax.robots import inventory
+from unilab_jax.robots.client import RobotClient
 from unilab_jax.runtime.buffers import transition_layout
 from unilab_jax.runtime.pool import WorkerPool
 from unilab_jax.runtime.prior import load_prior
@@ -195,6 +197,24 @@ def test_record_demonstrations_with_images(tmp_path, capsys):
     for bad in ("--frame_stack=0", "--cameras=top", "--image_size=8"):
         assert record.main(["--episodes=1", f"--out={tmp_path / 'x'}", "--cameras=front", bad]) == 2
         assert "error:" in capsys.readouterr().err
+
+
+def test_a_runs_sim_servers_draw_the_arm_with_its_camera_geometry():
+    """``Inventory(camera_geometry=...)`` (a robot experiment's ``--task_config=camera_geometry``) reaches the sim:
+    servers it starts: after the same seeded reset, the front frame with the arm's collision shapes differs from the
+    one with its visual meshes (which arm geometry the server draws: tests/robots/test_robot_sim.py)."""
+    frames = {}
+    for geometry in ("collision", "visual"):
+        with inventory.Inventory(inventory.parse("sim:franka_emika_panda"), "peg_insertion", 50.0, cameras=("front",),
+                                 image_size=16, camera_geometry=geometry) as inv:
+            client = RobotClient(inv.addresses[0], timeout_s=10.0)
+            client.connect()
+            try:
+                frames[geometry] = client.reset(seed=1)["front"]
+            finally:
+                client.close()
+    assert frames["collision"].shape == frames["visual"].shape == (16, 16, 3)
+    assert frames["collision"].std() > 5 and not np.array_equal(frames["collision"], frames["visual"])
 
 
 def test_experiment_refuses_a_server_without_the_cameras(tmp_path, serve):

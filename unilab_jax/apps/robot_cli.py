@@ -219,7 +219,8 @@ def _train(validated: tuple, dense_reward: bool) -> None:
     robot_task = run.task.removeprefix("robot_")
     dense = dense_reward if FLAGS.dense_reward is None else FLAGS.dense_reward
     with inventory.Inventory(entries, robot_task, FLAGS.speed, seed=FLAGS.seed, dense_reward=dense,
-                             cameras=task_config.cameras, image_size=task_config.image_size) as inv:
+                             cameras=task_config.cameras, image_size=task_config.image_size,
+                             camera_geometry=task_config.camera_geometry) as inv:
         found = report_robots(inv, robot_task)
         if task_config.cameras:
             _check_cameras(found, task_config, config)

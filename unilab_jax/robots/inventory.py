@@ -138,15 +138,16 @@ def _toml_entries(path: str, doc: dict) -> list[RobotEntry]:
 
 class LocalServer:
     """A ``python -m unilab_jax.robots.serve`` subprocess on a free loopback port (rendering ``cameras`` at
-    ``image_size``; none by default); it stops by itself when the process that started it dies, even by SIGKILL
-    (``--exit_with_parent``)."""
+    ``image_size``, the arm drawn with its ``camera_geometry``; no cameras by default); it stops by itself when the
+    process that started it dies, even by SIGKILL (``--exit_with_parent``)."""
 
     def __init__(self, arm: str, task: str, speed: float, seed: int = 0, port: int = 0,
                  extra: tuple[str, ...] = ("--dense_reward",), cameras: tuple[str, ...] = (), image_size: int = 64,
-                 env: dict[str, str] | None = None):
+                 env: dict[str, str] | None = None, camera_geometry: str = "visual"):
         cmd = [sys.executable, "-m", "unilab_jax.robots.serve", f"--robot={arm}", f"--task={task}",
                f"--speed={speed}", f"--cameras={','.join(cameras) or 'none'}", f"--image_size={image_size}",
-               "--host=127.0.0.1", f"--port={port}", f"--seed={seed}", "--exit_with_parent", *extra]
+               f"--camera_geometry={camera_geometry}", "--host=127.0.0.1", f"--port={port}", f"--seed={seed}",
+               "--exit_with_parent", *extra]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env={**os.environ, "OMP_NUM_THREADS": "1", **(env or {})})
         lines: queue.Queue[str] = queue.Queue()
@@ -178,13 +179,13 @@ class LocalServer:
 class Inventory:
     """Starts the local servers of ``entries`` (``with Inventory(...) as inv: inv.addresses``); stops them
     on exit, also when starting one of them fails (``dense_reward``: the servers' reward, else success only;
-    ``cameras`` / ``image_size``: what they render)."""
+    ``cameras`` / ``image_size`` / ``camera_geometry``: what they render)."""
 
     def __init__(self, entries: list[RobotEntry], task: str, speed: float, seed: int = 0, dense_reward: bool = True,
-                 cameras: tuple[str, ...] = (), image_size: int = 64):
+                 cameras: tuple[str, ...] = (), image_size: int = 64, camera_geometry: str = "visual"):
         self.entries, self.task, self.speed, self.seed = entries, task, speed, seed
         self.extra = ("--dense_reward",) if dense_reward else ()
-        self.cameras, self.image_size = tuple(cameras), image_size
+        self.cameras, self.image_size, self.camera_geometry = tuple(cameras), image_size, camera_geometry
         self.servers: list[LocalServer] = []
         self.addresses: list[str] = []
 
@@ -200,7 +201,8 @@ class Inventory:
                 if e.sim:
                     self.servers.append(LocalServer(SIM_ROBOTS[e.sim], self.task, self.speed, seed=self.seed + i,
                                                     extra=self.extra, cameras=self.cameras,
-                                                    image_size=self.image_size, env=env))
+                                                    image_size=self.image_size, env=env,
+                                                    camera_geometry=self.camera_geometry))
                     self.addresses.append(self.servers[-1].address)
                 else:
                     self.addresses.append(e.address)

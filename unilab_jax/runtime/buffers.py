@@ -29,6 +29,7 @@ attach through the picklable ``handle``.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from collections.abc import Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -87,9 +88,14 @@ def transition_layout(spec: Any, extras: Mapping[str, tuple[tuple[int, ...], Any
     return layout
 
 
+_WORDS = {1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}
+_SEED, _MUL1, _MUL2 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
+_SHIFT1, _SHIFT2 = np.uint64(29), np.uint64(31)
+
+
 def _as_words(a: np.ndarray) -> np.ndarray:
     """Reinterprets ``a`` as unsigned ints of the same itemsize (works on strided views)."""
-    return a.view(f"u{a.dtype.itemsize}")
+    return a.view(_WORDS[a.dtype.itemsize])
 
 
 def row_checksums(rows: Mapping[str, np.ndarray], n: int) -> np.ndarray:
@@ -97,18 +103,29 @@ def row_checksums(rows: Mapping[str, np.ndarray], n: int) -> np.ndarray:
 
     Written identically by the replay writer (on its rows in shared memory) and the sampler (on
     its gathered copy): per field a wrapped sum and an xor of the row's words, folded with odd
-    multipliers, then a splitmix64 finalizer.
+    multipliers, then a splitmix64 finalizer. A worker checksums its few rows on every env step, so
+    the per-field numpy calls are kept few (one-word fields skip the reductions: their sum and xor
+    are the word itself).
     """
-    h = np.full(n, 0x9E3779B97F4A7C15, dtype=np.uint64)
+    h = np.full(n, _SEED, dtype=np.uint64)
     with np.errstate(over="ignore"):
         for name in sorted(rows):
             a = rows[name]
-            u = _as_words(a.reshape(n, int(np.prod(a.shape[1:], dtype=np.int64))))
-            s = u.sum(axis=1, dtype=np.uint64)
-            x = np.bitwise_xor.reduce(u, axis=1).astype(np.uint64) if u.shape[1] else np.zeros(n, np.uint64)
-            h = (h ^ s) * np.uint64(0xBF58476D1CE4E5B9)
-            h = (h ^ x ^ (h >> np.uint64(29))) * np.uint64(0x94D049BB133111EB)
-        h ^= h >> np.uint64(31)
+            u = _as_words(a.reshape(n, math.prod(a.shape[1:])))
+            if u.shape[1] == 1:
+                s = x = u[:, 0].astype(np.uint64)
+            elif u.shape[1]:
+                s = u.sum(axis=1, dtype=np.uint64)
+                x = np.bitwise_xor.reduce(u, axis=1).astype(np.uint64)
+            else:
+                s = x = np.zeros(n, np.uint64)
+            h ^= s
+            h *= _MUL1
+            folded = h >> _SHIFT1
+            h ^= x
+            h ^= folded
+            h *= _MUL2
+        h ^= h >> _SHIFT2
     return h
 
 
