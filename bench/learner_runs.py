@@ -57,7 +57,7 @@ def main() -> None:
             commit, variant, u, ttt, metrics_dir = spec.split(",")
             steps_per_call = int(u)
         except ValueError:
-            sys.exit(f"error: RUN must be commit,variant,U,TTT_JSON,METRICS_DIR, got {spec!r}")
+            ap.error(f"RUN must be commit,variant,U,TTT_JSON,METRICS_DIR, got {spec!r}")
         for rec in json.load(open(ttt))["records"]:
             path = os.path.join(metrics_dir, os.path.basename(rec["logdir"]) + ".jsonl")
             rows = [json.loads(line) for line in open(path)]
