@@ -28,7 +28,7 @@ def test_train_returns_the_summary(tmp_path):
     assert summary == json.load(open(os.path.join(logdir, "summary.json")))
     (perfetto,) = glob.glob(os.path.join(trace, "**", "perfetto_trace.json.gz"), recursive=True)
     names = {e.get("name", "") for e in json.load(gzip.open(perfetto))["traceEvents"]}
-    assert any(n.startswith("$trainer.py") and n.endswith(" _update") for n in names)
+    assert any(n.startswith("$trainer.py") and n.endswith(" _dispatch") for n in names)
 
 
 @pytest.mark.parametrize("kwargs,error,message", [
