@@ -17,10 +17,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 # test_rlpd_improves_on_its_first_evaluation: the last checkpoint's return over the first's, on the same 8 episodes.
 # Measured (2-core VM, three runs of the test, seed 0, the recipe's 10 critics): first -0.024 / -0.023 / -0.023 (an
 # untrained policy barely moves the peg: the 8-episode mean hardly varies), last 0.090 / 0.208 / 0.304: gains
-# 0.11-0.33, while the run's own 2-episode evaluation at 900 steps read 0.006 in the first. With 5 critics (the test's
-# setting since; the run is learner-bound, ~17 CPU-s less), seeds 0-4: gains 0.26, 0.15, 0.28, 0.31, 0.38 (10 critics,
-# seeds 0 and 4: 0.23, 0.33; 2 critics, seeds 0-4: 0.08, 0.25, 0.19, 0.32, 0.02, too spread). The threshold is a third
-# of the smallest gain at 5 critics.
+# 0.11-0.33, while the run's own 2-episode evaluation at 900 steps read 0.006 in the first; seeds 0 and 4 again
+# (later session): 0.23, 0.33. The threshold is half the smallest gain. An ensemble of 5 critics (~17 CPU-s less)
+# was tried: seeds 0-4 alone gained 0.15-0.38, but a fresh-clone CI run (the whole suite on the 2 cores) gained
+# 0.025 on seed 0, so the test keeps the recipe's 10.
 THRESHOLD = 0.05
 
 
@@ -96,8 +96,7 @@ def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message
 def test_rlpd_improves_on_its_first_evaluation(tmp_path):
     """The cheapest learning configuration: state-based peg insertion (``--observation=state``) with the dense
     reward and the rotation locked, three robots at speed 50 (one trains, two evaluate every 300 steps while it
-    does), 900 env steps, utd 8, an ensemble of 5 critics (the recipe's 10 cost the learner twice as much; the
-    subset-of-2 target and the ensemble's spread work the same way).
+    does), 900 env steps, utd 8.
 
     The dense reward is potential-based (10 x success + potential(s') - potential(s)): an episode without success
     returns the potential's change, in [-1, 1]. The run's own 2-episode evaluations are too few to rank (seed 0
@@ -111,8 +110,8 @@ def test_rlpd_improves_on_its_first_evaluation(tmp_path):
     out = _script("rlpd_franka_peg.py", "--observation=state", f"--robots={robots}", "--num_workers=1", "--eval_envs=2",
                   "--eval_every=300",
                   "--speed=50", "--total_steps=900", "--dense_reward", "--config", "utd=8", "--config",
-                  "init_alpha=0.05", "--config", "num_critics=5", "--task_config=lock_rotation=true",
-                  "--replay_on_device=on", f"--logdir={logdir}", timeout=400)
+                  "init_alpha=0.05", "--task_config=lock_rotation=true", "--replay_on_device=on", f"--logdir={logdir}",
+                  timeout=400)
     assert out.returncode == 0, out.stderr[-3000:]
     evals = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
     evals = [(r["step"], r["eval/return"]) for r in evals if "eval/return" in r]
