@@ -51,7 +51,8 @@ def _build(argv, sized_for=None):
 
 def test_auto_flags_reach_the_run_config(tmp_path, capsys):
     cores = sizing.available_cores()
-    workers = sizing.auto_num_workers(cores, learner_on_cpu=True)  # JAX runs on this machine's CPU
+    assert sizing.learner_on_cpu("jax")  # JAX runs on this machine's CPU (no accelerator here)
+    workers = sizing.auto_num_workers(cores, learner_on_cpu=True)
     recipe = sizing.SizedFor("a test machine", 4, 16)
     run = _build(["--num_workers=auto", f"--logdir={tmp_path}"], recipe)
     assert (run.num_workers, run.envs_per_worker) == (workers, math.ceil(64 / workers))

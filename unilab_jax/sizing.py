@@ -3,7 +3,7 @@
 ``--num_workers=auto`` gives the workers every core the learner does not need; ``--envs_per_worker=auto``
 splits the environments a recipe was tuned with (its :class:`SizedFor`) over those workers, so the
 algorithm sees the same batch on any machine. Pure functions of the core count (tested as such); only
-:func:`available_cores` asks the operating system.
+:func:`available_cores` asks the operating system and :func:`learner_on_cpu` the learner's array library.
 """
 
 from __future__ import annotations
@@ -37,6 +37,18 @@ def available_cores() -> int:
     if hasattr(os, "sched_getaffinity"):
         return max(1, len(os.sched_getaffinity(0)))
     return max(1, os.cpu_count() or 1)
+
+
+def learner_on_cpu(platform: str) -> bool:
+    """Whether a ``platform`` ("jax" or "mlx") learner computes on the CPU: JAX's default backend, MLX's default
+    device."""
+    if platform == "jax":
+        import jax
+
+        return jax.default_backend() == "cpu"
+    import mlx.core as mx
+
+    return mx.default_device().type == mx.cpu
 
 
 def learner_cores(cores: int, learner_on_cpu: bool) -> int:

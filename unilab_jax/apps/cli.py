@@ -141,16 +141,6 @@ class FlagError(ValueError):
     """A bad flag value, reported before anything starts."""
 
 
-def _learner_on_cpu(platform: str) -> bool:
-    if platform == "jax":
-        import jax
-
-        return jax.default_backend() == "cpu"
-    import mlx.core as mx
-
-    return mx.default_device().type == mx.cpu
-
-
 def _given(opts: Any, name: str) -> bool:
     """Whether option ``name`` was set by the user (a flag on the command line, a keyword of ``train``)."""
     return FLAGS[name].present if opts is FLAGS else name in getattr(opts, "given", ())
@@ -165,7 +155,7 @@ def size_for_machine(sized_for: sizing.SizedFor | None, opts: Any = FLAGS) -> No
         return
     cores, recipe = sizing.available_cores(), sized_for or DEV_VM
     if auto_workers:
-        opts.num_workers = sizing.auto_num_workers(cores, _learner_on_cpu(opts.platform))
+        opts.num_workers = sizing.auto_num_workers(cores, sizing.learner_on_cpu(opts.platform))
     if opts.num_workers < 1:
         raise FlagError(f"--num_workers must be at least 1, got {opts.num_workers}")
     if auto_envs:

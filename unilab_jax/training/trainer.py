@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 import tasks
-from unilab_jax import algos, nets
+from unilab_jax import algos, nets, sizing
 from unilab_jax import xp as shim
 from unilab_jax.checkpoint import Checkpointer
 from unilab_jax.fields import prior_fields, replay_fields
@@ -298,15 +298,7 @@ class Trainer:
         mode = self.run.eval_process  # one of auto/on/off (RunConfig checks it)
         if mode != "auto":
             return mode == "on"
-        if self.run.serial:
-            return False
-        if self.run.platform == "jax":
-            import jax
-
-            return jax.default_backend() != "cpu"
-        import mlx.core as mx
-
-        return mx.default_device().type == mx.gpu
+        return not self.run.serial and not sizing.learner_on_cpu(self.run.platform)
 
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
