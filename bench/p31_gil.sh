@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Issue 31 on the 1-GPU machine: what the learner process's other Python threads cost the learner thread (the GIL).
-# FastSAC Go1 (fastsac_async, SEED) once per variant, MAXS seconds each; per run: calls/s and the learner thread's
-# seconds per call (perf/update_s: the update's dispatch; perf/fetch_s: its results to the host) between 40 s and the
-# end, and the time to walking if reached.
+# FastSAC Go1 (fastsac_async, SEED) once per variant, MAXS seconds each; per run (bench/learner_runs.py, from 40 s to
+# the end): calls/s, gradient steps/s, the learner thread's milliseconds per call (perf/update_s: the update's dispatch;
+# perf/fetch_s: its results to the host), and the time to walking if reached.
 #   base      as the recipe runs
 #   noeval    no evaluation during the run (--eval_every past the budget): the evaluator thread's share
 #   swi       the interpreter's GIL switch interval 0.5 ms instead of 5 ms (sys.setswitchinterval, via sitecustomize)
@@ -23,15 +23,7 @@ for v in ${VARIANTS:-base noeval swi}; do
   XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" --max_seconds "${MAXS:-110}" \
     --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$v.json" "${extra[@]}" 2>&1 \
     | grep -v -i warning | tail -2 | sed "s/^/$v: /"
-  run=$(ls -td /tmp/time_to_target_runs/fastsac_async_s${SEED:-0}_* | head -1)
-  python3 - "$run/metrics.jsonl" "$v" <<'PY'
-import json, sys
-rows = [json.loads(line) for line in open(sys.argv[1])]
-calls = [r for r in rows if "perf/update_s" in r and r.get("time/wall_s", 0) >= 40]
-if len(calls) > 1:
-    span = calls[-1]["time/wall_s"] - calls[0]["time/wall_s"]
-    med = {k: sorted(r.get(k, float("nan")) for r in calls)[len(calls) // 2] * 1e3 for k in ("perf/update_s", "perf/fetch_s")}
-    print(f"{sys.argv[2]}: calls/s {(len(calls) - 1) / span:.1f} over {span:.0f} s, medians: dispatch (perf/update_s) "
-          f"{med['perf/update_s']:.1f} ms, fetch {med['perf/fetch_s']:.1f} ms, last utd {calls[-1].get('perf/utd', float('nan')):.5f}")
-PY
+  u=8; [ "$v" = u16 ] && u=16
+  python3 bench/learner_runs.py --start 40 --end "${MAXS:-110}" --out "$OUT/rates_$v.json" \
+    "${COMMIT:-unknown},$v,$u,$OUT/ttt_$v.json,$OUT/metrics" | grep "^| ${COMMIT:-unknown}"
 done
