@@ -8,30 +8,22 @@
 #   swi       the interpreter's GIL switch interval 0.5 ms instead of 5 ms (sys.setswitchinterval, via sitecustomize)
 #   u16       16 gradient steps per learner call instead of the recipe's 8 (the same update-to-data ratio)
 #   nocb      no XLA command buffers (--xla_gpu_enable_command_buffer=): the scan's steps as plain kernel launches
-#   steps     --learner_dispatch=steps: a jit per gradient step, queued without waiting (learner_jax._Jitted)
-# Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR): the first training row
-# moves 12-35 s with the cache's state. SEEDS (default: SEED) runs every variant for each seed, variants inner.
-#   VARIANTS="base steps" SEEDS="0 1" MAXS=160 bash bench/p31_gil.sh
+#   VARIANTS="base noeval swi" SEED=0 MAXS=110 bash bench/p31_gil.sh
 set -u
-OUT=${OUT:-/tmp/p31_gil}; mkdir -p "$OUT"
+OUT=${OUT:-/tmp/p31_gil}; mkdir -p "$OUT/metrics"
 ROBOTS="unitree_go1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
 mkdir -p /tmp/swi && echo 'import sys; sys.setswitchinterval(0.0005)' > /tmp/swi/sitecustomize.py
-for seed in ${SEEDS:-${SEED:-0}}; do
 for v in ${VARIANTS:-base noeval swi}; do
-  run=${v}_s$seed; cache=$(mktemp -d)
   extra=(); pp=$PYTHONPATH
   [ "$v" = noeval ] && extra=(--extra=--eval_every=1000000000)
   [ "$v" = swi ] && pp=/tmp/swi:$PYTHONPATH
   xf=${XLA_FLAGS:-}; [ "$v" = nocb ] && xf="$xf --xla_gpu_enable_command_buffer="
   [ "$v" = u16 ] && extra=(--extra=--config=updates_per_call=16)
-  [ "$v" = steps ] && extra=(--extra=--learner_dispatch=steps)
-  JAX_COMPILATION_CACHE_DIR=$cache XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async \
-    --seed "$seed" --max_seconds "${MAXS:-110}" --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics_$run" \
-    --out "$OUT/ttt_$run.json" "${extra[@]}" 2>&1 | grep -v -i warning | tail -2 | sed "s/^/$run: /"
-  rm -rf "$cache"
+  XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" --max_seconds "${MAXS:-110}" \
+    --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$v.json" "${extra[@]}" 2>&1 \
+    | grep -v -i warning | tail -2 | sed "s/^/$v: /"
   u=8; [ "$v" = u16 ] && u=16
-  python3 bench/learner_runs.py --start 40 --end "${MAXS:-110}" --out "$OUT/rates_$run.json" \
-    "${COMMIT:-unknown},$v,$u,$OUT/ttt_$run.json,$OUT/metrics_$run" | grep "^| ${COMMIT:-unknown}"
-done
+  python3 bench/learner_runs.py --start 40 --end "${MAXS:-110}" --out "$OUT/rates_$v.json" \
+    "${COMMIT:-unknown},$v,$u,$OUT/ttt_$v.json,$OUT/metrics" | grep "^| ${COMMIT:-unknown}"
 done

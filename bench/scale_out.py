@@ -69,8 +69,6 @@ def learner(args: argparse.Namespace) -> list[dict]:
                                                    "compute_dtype": args.compute_dtype})
         plain = algos.make_learner(module, "jax", config, GO1)
         traced_in = plain.compute_dtype  # DataParallel compiles plain.traced_update, in this dtype
-        if n == 1:
-            plain.set_dispatch(args.dispatch)
         lrn = sharding.make(plain, n)
         put = getattr(lrn, "from_numpy", jax.numpy.asarray)
         host = _replay_batch(np.random.default_rng(0), config.updates_per_call, config.batch_size)
@@ -80,11 +78,10 @@ def learner(args: argparse.Namespace) -> list[dict]:
         state, metrics = lrn.update(state, batch)
         jax.block_until_ready((state, metrics))
         first = time.perf_counter() - t0
-        times, returns = [], []
+        times = []
         for _ in range(args.repeats):
             t0 = time.perf_counter()
             state, metrics = lrn.update(state, batch)
-            returns.append(time.perf_counter() - t0)
             jax.block_until_ready((state, metrics))
             times.append(time.perf_counter() - t0)
         if args.profile_dir:  # 3 more steady calls traced (kernels per device, collectives), after the timing
@@ -95,17 +92,14 @@ def learner(args: argparse.Namespace) -> list[dict]:
         steady = float(np.median(times))
         rows.append({"devices": n, "batch": config.batch_size, "batch_per_device": args.batch_per_device,
                      "updates_per_call": config.updates_per_call, "compute_dtype": plain.compute_dtype,
-                     "matmuls_traced_in": traced_in, "dispatch": plain.dispatch, "first_call_s": first,
-                     "steady_s": steady, "returns_after_s": float(np.median(returns)),
+                     "matmuls_traced_in": traced_in, "first_call_s": first, "steady_s": steady,
                      "grad_steps_per_s": config.updates_per_call / steady,
                      "samples_per_s": config.updates_per_call * config.batch_size / steady})
     base = rows[0]["grad_steps_per_s"]
-    print(f"{'devices':>7s} {'batch':>7s} {'first call s':>12s} {'steady ms':>10s} {'returns ms':>10s} "
-          f"{'grad steps/s':>12s} {'x':>6s}")
+    print(f"{'devices':>7s} {'batch':>7s} {'first call s':>12s} {'steady ms':>10s} {'grad steps/s':>12s} {'x':>6s}")
     for r in rows:
         r["speedup"] = r["grad_steps_per_s"] / base
         print(f"{r['devices']:7d} {r['batch']:7d} {r['first_call_s']:12.2f} {r['steady_s'] * 1e3:10.1f} "
-              f"{r['returns_after_s'] * 1e3:10.1f} "
               f"{r['grad_steps_per_s']:12.1f} {r['speedup']:6.2f}")
     return rows
 
@@ -193,8 +187,6 @@ def main() -> None:
     ap.add_argument("part", choices=["learner", "rollouts"])
     ap.add_argument("--devices", type=int, nargs="+", default=[1, 2], help="learner: device counts (first: baseline)")
     ap.add_argument("--batch_per_device", type=int, default=8192)
-    ap.add_argument("--dispatch", default="scan", choices=["scan", "steps"],
-                    help="learner, one device: one jit per call or one per gradient step (learner_jax._Jitted)")
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--ray_address", default="auto", help="rollouts: the cluster (ignored with --local_nodes)")
     ap.add_argument("--local_nodes", type=int, default=0, help="rollouts: start a local cluster of this many nodes")

@@ -48,10 +48,7 @@ def _train(tmp_path, algo, recipe, total_steps, seed=0, eval_every=0, **run_kw):
     config = apply_overrides(module.Config(), recipe)
     run = RunConfig(algo=algo, task="cartpole_balance", num_workers=2, envs_per_worker=16, total_steps=total_steps,
                     seed=seed, logdir=str(tmp_path / f"{algo}_s{seed}"), eval_every=eval_every, **run_kw)
-    trainer = Trainer(run, module, config, {})
-    if run.platform == "jax":
-        assert trainer.learner.dispatch == ("steps" if run.learner_dispatch == "steps" else "scan")
-    summary = trainer.train()
+    summary = Trainer(run, module, config, {}).train()
     rows = [json.loads(line) for line in open(os.path.join(summary["logdir"], "metrics.jsonl"))]
     return config, summary, rows
 
@@ -148,12 +145,10 @@ def test_serial_replay_loop_holds_the_ratio(tmp_path):
     assert summary["updates"] * 2 >= 0.05 * (summary["env_steps"] - 256) * 0.8
 
 
-def test_serial_replay_loop_on_device_with_steps_dispatch_holds_the_ratio(tmp_path):
-    """The device mirror feeding a learner that dispatches a jit per gradient step (``--learner_dispatch=steps``)."""
+def test_serial_replay_loop_on_device_holds_the_ratio(tmp_path):
     recipe = {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32, "updates_per_call": 2,
               "publish_every": 4, "learning_starts": 256, "replay_capacity": 4_096, "utd": 0.05}
-    config, summary, rows = _train(tmp_path, "sac", recipe, 2_000, serial=True, eval_envs=2, replay_on_device="on",
-                                   learner_dispatch="steps")
+    config, summary, rows = _train(tmp_path, "sac", recipe, 2_000, serial=True, eval_envs=2, replay_on_device="on")
     _check_replay_loop(config, summary, rows, 2_000)
     assert summary["updates"] * 2 >= 0.05 * (summary["env_steps"] - 256) * 0.8
     assert all(r["perf/replay_upload_rows"] > 0 for r in rows if "loss/critic_loss" in r)
@@ -164,8 +159,6 @@ def test_replay_on_device_refuses_what_it_cannot_do(tmp_path):
         _train(tmp_path, "sac", {"batch_size": 32}, 100, replay_on_device="gpu")
     with pytest.raises(ValueError, match="jax platform"):
         _train(tmp_path, "sac", {"batch_size": 32}, 100, replay_on_device="on", platform="mlx")
-    with pytest.raises(ValueError, match="learner_dispatch='steps' is for the JAX learner on one device"):
-        _train(tmp_path, "sac", {"batch_size": 32}, 100, learner_dispatch="steps", devices="2")
 
 
 def test_noise_hold_redraws_every_n_steps_per_env():

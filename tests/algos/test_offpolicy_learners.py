@@ -184,33 +184,3 @@ def test_learns_a_contextual_bandit(name):
     final = error(state)
     assert start > 0.5 and final < 0.1, f"{name}: action error {start:.3f} -> {final:.3f}; last metrics {metrics}"
     assert learner.trace_count == 1
-
-
-@pytest.mark.parametrize("name", ["fastsac", "td3"])
-def test_steps_dispatch_computes_what_the_scan_does(name):
-    """``set_dispatch("steps")`` (a jit per gradient step, for GPUs) runs the scan's arithmetic: the same state and
-    metrics from the same inputs (to float rounding: XLA fuses the two programs differently), compiled once."""
-    _, cfg, learner = _learner(name)
-    rng = np.random.default_rng(6)
-    batches = [_batch(rng, cfg.updates_per_call, terminated=0.0) for _ in range(2)]
-    results, traces = {}, {}
-    try:
-        for dispatch in ("scan", "steps"):
-            learner.set_dispatch(dispatch)
-            traces[dispatch] = learner.trace_count
-            state = learner.init(jax.random.PRNGKey(6))
-            for batch in batches:
-                state, metrics = learner.update(state, batch)
-            results[dispatch] = (_np(state), {k: float(v) for k, v in metrics.items()})
-    finally:
-        learner.set_dispatch("scan")
-    assert learner.trace_count == traces["steps"] + 1, "the steps' programs retraced"
-    (scan_state, scan_metrics), (steps_state, steps_metrics) = results["scan"], results["steps"]
-    assert int(steps_state.steps) == 2 * cfg.updates_per_call
-    for got, want in zip(jax.tree_util.tree_leaves(steps_state), jax.tree_util.tree_leaves(scan_state)):
-        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
-    assert steps_metrics.keys() == scan_metrics.keys()
-    for k, v in scan_metrics.items():
-        assert steps_metrics[k] == pytest.approx(v, rel=1e-4, abs=1e-5), k
-    with pytest.raises(ValueError, match="dispatch"):
-        learner.set_dispatch("unrolled")

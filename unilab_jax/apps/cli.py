@@ -86,9 +86,6 @@ flags.DEFINE_enum("replay_on_device", "auto", ["auto", "on", "off"], "off-policy
                   "CPU or --replay_dir is set)")
 flags.DEFINE_enum("eval_process", "auto", ["auto", "on", "off"], "run the evaluations' episodes in a process of "
                   "their own, off the learner process (auto: when the learner runs on an accelerator and not --serial)")
-flags.DEFINE_enum("learner_dispatch", "auto", ["auto", "scan", "steps"], "off-policy, jax learner on one device: "
-                  "scan runs an update call's gradient steps in one compiled loop, steps queues one compiled step "
-                  "each without waiting for the device (auto: scan)")
 flags.DEFINE_enum("utd_mode", "hold", ["hold", "free"], "off-policy: hold pauses the workers when the learner falls "
                   "more than --utd_window env steps behind the recipe's update-to-data ratio; free never pauses them")
 flags.DEFINE_integer("utd_window", 0, "with --utd_mode=hold: env steps the workers may run ahead of the ratio "
@@ -116,7 +113,7 @@ RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker"
              "eval_every", "eval_envs", "eval_process", "checkpoint_every", "video_every", "serial", "pin_cpus",
              "devices", "wandb_project", "profile_dir", "profile_start", "profile_updates", "config", "task_config")
 REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
-                "learner_dispatch", "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
+                "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
 
 
 def run_flags(algo: str) -> list[str]:
@@ -227,11 +224,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError(f"--replay_dir: {algo} does not use a replay buffer")
     if opts.replay_on_device == "on" and (module.BUFFER != "replay" or opts.platform != "jax" or opts.replay_dir):
         raise FlagError("--replay_on_device=on needs an off-policy algorithm, --platform=jax and no --replay_dir")
-    steps_ok = module.BUFFER == "replay" and opts.platform == "jax" and opts.devices == "1"
-    if opts.learner_dispatch == "steps" and not steps_ok:
-        raise FlagError("--learner_dispatch=steps needs an off-policy algorithm, --platform=jax and --devices=1")
-    for name, choices in (("replay_on_device", ("auto", "on", "off")), ("utd_mode", ("hold", "free")),
-                          ("learner_dispatch", ("auto", "scan", "steps"))):
+    for name, choices in (("replay_on_device", ("auto", "on", "off")), ("utd_mode", ("hold", "free"))):
         if getattr(opts, name) not in choices:  # absl checks the flags; train()'s keywords are checked here
             raise FlagError(f"--{name}={getattr(opts, name)!r}: choose one of {choices}")
     if not 0.0 <= opts.replay_hot_fraction <= 1.0:
@@ -289,7 +282,6 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     checkpoint_every=opts.checkpoint_every, serial=opts.serial, replay_dir=opts.replay_dir,
                     replay_disk_gb=opts.replay_disk_gb, replay_hot_fraction=opts.replay_hot_fraction,
                     replay_chunk_rows=opts.replay_chunk_rows, replay_on_device=opts.replay_on_device,
-                    learner_dispatch=opts.learner_dispatch,
                     utd_mode=opts.utd_mode, utd_window=opts.utd_window, pin_cpus=opts.pin_cpus,
                     video_every=opts.video_every, devices=opts.devices, ray_address=opts.ray_address,
                     ray_workers_per_host=opts.ray_workers_per_host, wandb_project=opts.wandb_project,

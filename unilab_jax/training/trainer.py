@@ -92,10 +92,6 @@ class RunConfig:
     # process's interpreter lock. "auto": when the learner runs on an accelerator (JAX not on the CPU, MLX on the
     # GPU) and the run is not serial; "on" / "off" force it.
     eval_process: str = "auto"
-    # Off-policy, JAX learner on one device: how an update call reaches the device (learner_jax._Jitted): "scan"
-    # (one jit that loops over the call's gradient steps), "steps" (one jit per gradient step, queued without
-    # waiting); "auto": scan.
-    learner_dispatch: str = "auto"
     # Off-policy: "hold" pauses the workers when the learner falls more than ``utd_window`` env steps behind
     # the recipe's update-to-data ratio (the same learning per env step on any machine); "free" lets them
     # run on (a learner slower than ``utd`` x the env rate then trains below the ratio). See ReplaySource.
@@ -134,12 +130,9 @@ class RunConfig:
             if getattr(self, name) < 0:
                 raise ValueError(f"RunConfig: {name} must be >= 0, got {getattr(self, name)!r}")
         for name, choices in (("platform", ("jax", "mlx")), ("utd_mode", ("hold", "free")),
-                              ("replay_on_device", ("auto", "on", "off")), ("eval_process", ("auto", "on", "off")),
-                              ("learner_dispatch", ("auto", "scan", "steps"))):
+                              ("replay_on_device", ("auto", "on", "off")), ("eval_process", ("auto", "on", "off"))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"RunConfig: {name} must be one of {choices}, got {getattr(self, name)!r}")
-        if self.learner_dispatch == "steps" and (self.platform != "jax" or self.devices != "1"):
-            raise ValueError("RunConfig: learner_dispatch='steps' is for the JAX learner on one device (--devices=1)")
 
 
 def _learner_platform(platform: str) -> Any:
@@ -182,8 +175,6 @@ class Trainer:
         probe.close()
         self.xp = _learner_platform(run.platform)
         self.learner = algos.make_learner(algo_module, run.platform, algo_config, self.spec)
-        if run.learner_dispatch == "steps" and algos.info(algo_module).family == "off_policy":
-            self.learner.set_dispatch("steps")
         self.parallel = None  # the DataParallel learner of --devices > 1
         if run.devices != "1":
             from unilab_jax.training import sharding  # imports jax: only when asked for (MLX-only installs)

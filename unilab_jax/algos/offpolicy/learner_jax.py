@@ -3,8 +3,7 @@
 ``init(key) -> state``; ``update(state, batch) -> (state, metrics)``; ``weights(state)`` (static).
 ``batch`` is a dict of arrays shaped ``[U, B, ...]`` (U = ``config.updates_per_call``, B =
 ``config.batch_size``) with fields ``unilab_jax.fields.REPLAY_FIELDS``; other fields are ignored. ``update``
-is ONE ``jax.jit`` that scans U gradient steps (``set_dispatch("steps")``: one jit per gradient step, the same
-arithmetic; ``_Jitted`` says when that pays); an empty batch ``{}`` returns the state unchanged and no
+is ONE ``jax.jit`` that scans U gradient steps; an empty batch ``{}`` returns the state unchanged and no
 metrics (the trainer's replay source sends one while the ring warms up). The input state is donated on
 accelerators (``DONATE_STATE``).
 Normalizer statistics move once per call, from the first of the U minibatches, before the gradient
@@ -66,36 +65,12 @@ def _key_words(key: jax.Array) -> np.ndarray:
 
 
 class _Jitted:
-    """The JAX side of every off-policy learner: ``init``, and ``update`` in one of two dispatches (``dispatch``).
-
-    A subclass writes a call as three pure pieces: ``_begin(state, batch) -> (state, norms, keys)`` (the normalizer
-    step and the call's keys), ``_step(state, norms, batch, keys, i) -> (state, metrics)`` (gradient step ``i``, on
-    the minibatch ``batch[i]``) and ``_end(stacked metrics, norms) -> metrics``. ``_update`` scans
-    the steps between the two ends in ONE jit ("scan", the default). "steps" dispatches ``_begin``, U jitted
-    ``_step`` calls and ``_end`` instead (the same arithmetic, each piece compiled once): on a GPU a jit holding a
-    loop returns only when the loop has run (XLA's while loop reads its predicate back on the host every step), so
-    the calling thread waits for the whole call; U loop-free steps are queued and the thread returns at once."""
-
-    DISPATCHES = ("scan", "steps")
-    unroll_steps = False  # the scan unrolled (CPU image learners, below)
+    """The JAX side of every off-policy learner: ``_update`` as ONE jit (state donated on accelerators), ``init``."""
 
     def _compile(self, compiler_options: dict | None) -> None:
         self.compute_dtype = common.compute_dtype(self.config, jax.default_backend())
-        self.dispatch = "scan"
         self._update_jit = jax.jit(self.traced_update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
-        self._begin_jit = jax.jit(self._in_dtype(self._begin), donate_argnums=DONATE_STATE,
-                                  compiler_options=compiler_options)
-        self._step_jit = jax.jit(self._in_dtype(self._step), donate_argnums=DONATE_STATE,
-                                 compiler_options=compiler_options)
-        self._end_jit = jax.jit(self._in_dtype(self._end_stacking), compiler_options=compiler_options)
         self._init_state = jax.jit(self.initial_state, compiler_options=compiler_options)
-
-    def _in_dtype(self, fn: Any) -> Any:
-        def traced(*args: Any) -> Any:
-            with XP.compute_dtype(self.compute_dtype):
-                return fn(*args)
-
-        return traced
 
     def traced_update(self, state: Any, batch: dict) -> tuple[Any, dict]:
         """The pure update as this learner compiles it: ``_update`` traced in the learner's ``compute_dtype``
@@ -103,43 +78,15 @@ class _Jitted:
         with XP.compute_dtype(self.compute_dtype):
             return self._update(state, batch)
 
-    def _update(self, state: Any, batch: dict) -> tuple[Any, dict]:
-        state, norms, keys = self._begin(state, batch)
-        n = batch["reward"].shape[0]
-        state, metrics = jax.lax.scan(lambda st, i: self._step(st, norms, batch, keys, i), state, jnp.arange(n),
-                                      unroll=n if self.unroll_steps else 1)
-        return state, self._end(metrics, norms)
-
-    def _end_stacking(self, metrics: list[dict], norms: Any) -> dict:
-        return self._end(jax.tree.map(lambda *m: jnp.stack(m), *metrics), norms)
-
-    def set_dispatch(self, dispatch: str) -> None:
-        """How ``update`` runs a call: "scan" (one jit) or "steps" (a jit per gradient step; see the class)."""
-        if dispatch not in self.DISPATCHES:
-            raise ValueError(f"learner dispatch must be one of {self.DISPATCHES}, got {dispatch!r}")
-        self.dispatch = dispatch
-
     def update(self, state: Any, batch: dict) -> tuple[Any, dict]:
         """``batch`` [U, B, ...] -> (new state, metrics averaged over the U steps); ``{}`` (the trainer's
         replay source while the ring warms up) is a no-op."""
         if not batch:
             return state, {}
-        if self.dispatch == "scan":
-            return self._update_jit(state, batch)
-        state, norms, keys = self._begin_jit(state, batch)
-        metrics = []
-        for i in range(batch["reward"].shape[0]):
-            state, m = self._step_jit(state, norms, batch, keys, np.int32(i))
-            metrics.append(m)
-        return state, self._end_jit(metrics, norms)
+        return self._update_jit(state, batch)
 
     def init(self, key: jax.Array) -> Any:
         return self._init_state(self.init_params(_key_words(key)), jax.random.split(key)[1])
-
-
-def _minibatch(batch: dict, i: Any, fields: tuple[str, ...]) -> dict:
-    """Gradient step ``i``'s minibatch of a ``[U, B, ...]`` batch, prepared (``learner_common.prepare_batch``)."""
-    return common.prepare_batch({k: batch[k][i] for k in fields if k in batch}, fields)
 
 
 def make_td3_learner(algo: ModuleType, config: td3.TD3Config, spec: Any) -> TD3Learner:
@@ -158,31 +105,32 @@ class SACFamilyLearner(_Jitted, common.SACFamilyBase):
         self.unroll_steps = bool(self.image_shape) and jax.default_backend() == "cpu"
         self._compile(compiler_options)
 
-    def _begin(self, state: SACState, batch: dict) -> tuple[SACState, Any, jax.Array]:
+    def _update(self, state: SACState, batch: dict) -> tuple[SACState, dict]:
         self.trace_count += 1
-        state, norms = self.normalize(state, common.prepare_batch(batch, self.batch_fields))
-        keys = jax.random.split(state.key, batch["reward"].shape[0] + 1)
-        return state._replace(key=keys[0]), norms, keys[1:]
+        batch = common.prepare_batch(batch, self.batch_fields)
+        state, norms = self.normalize(state, batch)
 
-    def _step(self, st: SACState, norms: Any, batch: dict, keys: jax.Array, i: Any) -> tuple[SACState, dict]:
-        mb = _minibatch(batch, i, self.batch_fields)
-        keys = jax.random.split(keys[i], self.step_keys)
-        shape = (mb["action"].shape[0], self.noise_dim)
-        eps_next = jax.random.normal(keys[0], shape, jnp.float32)
-        eps = jax.random.normal(keys[1], shape, jnp.float32)
-        if self.critic_noise_shape is not None:
-            eps_next = (eps_next, jax.random.uniform(keys[2], self.critic_noise_shape, jnp.float32))
-        if self.image_shape:
-            mb = self.augment({**mb, image_obs.SHIFT: self.draw_shifts(keys[-1], shape[0])})
-        # The actor and the temperature move on every actor_every-th step (lax.cond; always when it is 1).
-        do_actor = True if self.actor_every == 1 else (st.steps + 1) % self.actor_every == 0
-        nets, metrics = common.sac_step(self, OPS, common.sac_nets(st), norms, mb, eps_next, eps, do_actor)
-        return st._replace(**nets._asdict()), metrics
+        def step(st: SACState, xs: tuple) -> tuple[SACState, dict]:
+            mb, key = xs
+            keys = jax.random.split(key, self.step_keys)
+            shape = (mb["action"].shape[0], self.noise_dim)
+            eps_next = jax.random.normal(keys[0], shape, jnp.float32)
+            eps = jax.random.normal(keys[1], shape, jnp.float32)
+            if self.critic_noise_shape is not None:
+                eps_next = (eps_next, jax.random.uniform(keys[2], self.critic_noise_shape, jnp.float32))
+            if self.image_shape:
+                mb = self.augment({**mb, image_obs.SHIFT: self.draw_shifts(keys[-1], shape[0])})
+            # The actor and the temperature move on every actor_every-th step (lax.cond; always when it is 1).
+            do_actor = True if self.actor_every == 1 else (st.steps + 1) % self.actor_every == 0
+            nets, metrics = common.sac_step(self, OPS, common.sac_nets(st), norms, mb, eps_next, eps, do_actor)
+            return st._replace(**nets._asdict()), metrics
 
-    def _end(self, metrics: dict, norms: Any) -> dict:
+        n = batch["reward"].shape[0]
+        keys = jax.random.split(state.key, n + 1)
+        state, metrics = jax.lax.scan(step, state, (batch, keys[1:]), unroll=n if self.unroll_steps else 1)
         metrics = self.call_metrics(metrics)
         metrics["reward_scale"] = norms.reward_scale
-        return metrics
+        return state._replace(key=keys[0]), metrics
 
 
 class TD3Learner(_Jitted, common.TD3Base):
@@ -192,20 +140,21 @@ class TD3Learner(_Jitted, common.TD3Base):
         super().__init__(config, spec, optax, XP)
         self._compile(compiler_options)
 
-    def _begin(self, state: TD3State, batch: dict) -> tuple[TD3State, Any, jax.Array]:
+    def _update(self, state: TD3State, batch: dict) -> tuple[TD3State, dict]:
         self.trace_count += 1
-        state, norms = self.normalize(state, common.prepare_batch(batch))
-        keys = jax.random.split(state.key, batch["reward"].shape[0] + 1)
-        return state._replace(key=keys[0]), norms, keys[1:]
+        cfg = self.config
+        batch = common.prepare_batch(batch)
+        state, norms = self.normalize(state, batch)
 
-    def _step(self, st: TD3State, norms: Any, batch: dict, keys: jax.Array, i: Any) -> tuple[TD3State, dict]:
-        mb = _minibatch(batch, i, common.BATCH_FIELDS)
-        eps_next = jax.random.normal(keys[i], mb["action"].shape, jnp.float32)
-        # Fujimoto's schedule: the actor moves after every policy_delay-th critic step (lax.cond).
-        do_actor = ((st.steps + 1) % self.config.policy_delay) == 0
-        nets, metrics = common.td3_step(self, OPS, common.td3_nets(st), norms, mb, eps_next, do_actor)
-        return st._replace(**nets._asdict()), metrics
+        def step(st: TD3State, xs: tuple) -> tuple[TD3State, dict]:
+            mb, key = xs
+            eps_next = jax.random.normal(key, mb["action"].shape, jnp.float32)
+            # Fujimoto's schedule: the actor moves after every policy_delay-th critic step (lax.cond).
+            do_actor = ((st.steps + 1) % cfg.policy_delay) == 0
+            nets, metrics = common.td3_step(self, OPS, common.td3_nets(st), norms, mb, eps_next, do_actor)
+            return st._replace(**nets._asdict()), metrics
 
-    @staticmethod
-    def _end(metrics: dict, norms: Any) -> dict:
-        return common.td3_metrics(metrics)
+        n = batch["reward"].shape[0]
+        keys = jax.random.split(state.key, n + 1)
+        state, metrics = jax.lax.scan(step, state, (batch, keys[1:]))
+        return state._replace(key=keys[0]), common.td3_metrics(metrics)
