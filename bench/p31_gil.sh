@@ -3,27 +3,37 @@
 # FastSAC Go1 (fastsac_async, SEED) once per variant, MAXS seconds each; per run (bench/learner_runs.py, from 40 s to
 # the end): calls/s, gradient steps/s, the learner thread's milliseconds per call (perf/update_s: the update's dispatch;
 # perf/fetch_s: its results to the host), and the time to walking if reached.
-#   base      as the recipe runs
+#   base      as bench/time_to_target.py runs it (13 workers, which --pin_cpus=auto keeps off 3 cores)
+#   w15       15 workers, no affinity (--pin_cpus=-1): the base before that
 #   noeval    no evaluation during the run (--eval_every past the budget): the evaluator thread's share
 #   swi       the interpreter's GIL switch interval 0.5 ms instead of 5 ms (sys.setswitchinterval, via sitecustomize)
 #   u16       16 gradient steps per learner call instead of the recipe's 8 (the same update-to-data ratio)
 #   nocb      no XLA command buffers (--xla_gpu_enable_command_buffer=): the scan's steps as plain kernel launches
-#   VARIANTS="base noeval swi" SEED=0 MAXS=110 bash bench/p31_gil.sh
+#   wNpK      N workers kept off the first K cores (--pin_cpus=K)
+# Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR): the first training row
+# moved 12-35 s between runs (with an empty cache each, still 12-32 s: not the cache alone). SEEDS (default: SEED) runs every variant for each seed, variants inner.
+#   VARIANTS="base w15" SEEDS="0 1 2" MAXS=160 bash bench/p31_gil.sh
 set -u
-OUT=${OUT:-/tmp/p31_gil}; mkdir -p "$OUT/metrics"
+OUT=${OUT:-/tmp/p31_gil}; mkdir -p "$OUT"
 ROBOTS="unitree_go1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
 mkdir -p /tmp/swi && echo 'import sys; sys.setswitchinterval(0.0005)' > /tmp/swi/sitecustomize.py
+for seed in ${SEEDS:-${SEED:-0}}; do
 for v in ${VARIANTS:-base noeval swi}; do
+  run=${v}_s$seed; cache=$(mktemp -d)
   extra=(); pp=$PYTHONPATH
   [ "$v" = noeval ] && extra=(--extra=--eval_every=1000000000)
   [ "$v" = swi ] && pp=/tmp/swi:$PYTHONPATH
   xf=${XLA_FLAGS:-}; [ "$v" = nocb ] && xf="$xf --xla_gpu_enable_command_buffer="
   [ "$v" = u16 ] && extra=(--extra=--config=updates_per_call=16)
-  XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" --max_seconds "${MAXS:-110}" \
-    --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics" --out "$OUT/ttt_$v.json" "${extra[@]}" 2>&1 \
-    | grep -v -i warning | tail -2 | sed "s/^/$v: /"
+  [ "$v" = w15 ] && extra=(--extra=--num_workers=15 --extra=--pin_cpus=-1)
+  [[ "$v" =~ ^w([0-9]+)p([0-9]+)$ ]] && extra=(--extra=--num_workers=${BASH_REMATCH[1]} --extra=--pin_cpus=${BASH_REMATCH[2]})
+  JAX_COMPILATION_CACHE_DIR=$cache XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async \
+    --seed "$seed" --max_seconds "${MAXS:-110}" --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics_$run" \
+    --out "$OUT/ttt_$run.json" "${extra[@]}" 2>&1 | grep -v -i warning | tail -2 | sed "s/^/$run: /"
+  rm -rf "$cache"
   u=8; [ "$v" = u16 ] && u=16
-  python3 bench/learner_runs.py --start 40 --end "${MAXS:-110}" --out "$OUT/rates_$v.json" \
-    "${COMMIT:-unknown},$v,$u,$OUT/ttt_$v.json,$OUT/metrics" | grep "^| ${COMMIT:-unknown}"
+  python3 bench/learner_runs.py --start 40 --end "${MAXS:-110}" --out "$OUT/rates_$run.json" \
+    "${COMMIT:-unknown},$v,$u,$OUT/ttt_$run.json,$OUT/metrics_$run" | grep "^| ${COMMIT:-unknown}"
+done
 done

@@ -78,10 +78,11 @@ def learner(args: argparse.Namespace) -> list[dict]:
         state, metrics = lrn.update(state, batch)
         jax.block_until_ready((state, metrics))
         first = time.perf_counter() - t0
-        times = []
+        times, returns = [], []
         for _ in range(args.repeats):
             t0 = time.perf_counter()
             state, metrics = lrn.update(state, batch)
+            returns.append(time.perf_counter() - t0)
             jax.block_until_ready((state, metrics))
             times.append(time.perf_counter() - t0)
         if args.profile_dir:  # 3 more steady calls traced (kernels per device, collectives), after the timing
@@ -92,14 +93,17 @@ def learner(args: argparse.Namespace) -> list[dict]:
         steady = float(np.median(times))
         rows.append({"devices": n, "batch": config.batch_size, "batch_per_device": args.batch_per_device,
                      "updates_per_call": config.updates_per_call, "compute_dtype": plain.compute_dtype,
-                     "matmuls_traced_in": traced_in, "first_call_s": first, "steady_s": steady,
+                     "matmuls_traced_in": traced_in, "first_call_s": first,
+                     "steady_s": steady, "returns_after_s": float(np.median(returns)),
                      "grad_steps_per_s": config.updates_per_call / steady,
                      "samples_per_s": config.updates_per_call * config.batch_size / steady})
     base = rows[0]["grad_steps_per_s"]
-    print(f"{'devices':>7s} {'batch':>7s} {'first call s':>12s} {'steady ms':>10s} {'grad steps/s':>12s} {'x':>6s}")
+    print(f"{'devices':>7s} {'batch':>7s} {'first call s':>12s} {'steady ms':>10s} {'returns ms':>10s} "
+          f"{'grad steps/s':>12s} {'x':>6s}")
     for r in rows:
         r["speedup"] = r["grad_steps_per_s"] / base
         print(f"{r['devices']:7d} {r['batch']:7d} {r['first_call_s']:12.2f} {r['steady_s'] * 1e3:10.1f} "
+              f"{r['returns_after_s'] * 1e3:10.1f} "
               f"{r['grad_steps_per_s']:12.1f} {r['speedup']:6.2f}")
     return rows
 
