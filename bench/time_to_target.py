@@ -79,7 +79,10 @@ DEFAULT_MD = os.path.join(HERE, "results", "time_to_target.md")
 # "return_target": whether --target (an evaluation return on Go1's reward scale) is a goal besides walking.
 # The MJX baselines evaluate as many episodes as the off-policy runs they are compared with (64): the walking
 # criterion's falls bound (2%) allows one fall in 64 episodes and none in 32 (the a3435e9 MJX run had 32).
-_OFFPOLICY = {"kind": "heterogeneous", "sync": "async", "eval_every": 1_000_000, "envs_per_worker": 64, "eval_envs": 64}
+# Off-policy runs: 13 workers, which the CLI's --pin_cpus=auto keeps off 3 cores for the learner process's threads
+# (docs/perf/learner_scaling.md section 8: 55-58 learner calls/s against 30-32 with 15 workers on every core).
+_OFFPOLICY = {"kind": "heterogeneous", "sync": "async", "eval_every": 1_000_000, "envs_per_worker": 64, "eval_envs": 64,
+              "num_workers": 13}
 CONFIGS: dict[str, dict[str, Any]] = {
     "ppo_lockstep": {"kind": "heterogeneous", "sync": "lockstep", "script": "experiments/ppo_go1.py",
                      "eval_every": 2_000_000, "return_target": True},
@@ -131,7 +134,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, nargs="*", default=[0], help="seeds (each a separate run)")
     ap.add_argument("--target", type=float, default=25.0, help="evaluation return to reach (Go1 configurations)")
     ap.add_argument("--max_seconds", type=float, default=540.0, help="budget per run, from its launch")
-    ap.add_argument("--num_workers", type=int, default=15)
+    ap.add_argument("--num_workers", type=int, default=None,
+                    help="workers for heterogeneous runs (default: the config's, else 15)")
     ap.add_argument("--envs_per_worker", type=int, default=None,
                     help="envs per worker for heterogeneous runs (default: the config's, else 128)")
     ap.add_argument("--eval_envs", type=int, default=0, help="episodes per evaluation (0: the config's, else 32)")
@@ -316,7 +320,7 @@ def command(name: str, cfg: dict[str, Any], seed: int, logdir: str, args: argpar
            "--total_steps=10000000000"]
     if cfg["kind"] == "heterogeneous":
         envs = args.envs_per_worker or cfg.get("envs_per_worker", 128)
-        cmd += [f"--num_workers={args.num_workers}", f"--envs_per_worker={envs}"]
+        cmd += [f"--num_workers={args.num_workers or cfg.get('num_workers', 15)}", f"--envs_per_worker={envs}"]
     else:
         cmd += [f"--max_seconds={args.max_seconds}"]
     return cmd + list(cfg.get("flags", [])) + list(args.extra)

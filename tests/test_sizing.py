@@ -15,10 +15,18 @@ from unilab_jax.apps import cli
 
 @pytest.mark.parametrize("cores,on_cpu,workers", [
     (1, False, 1), (1, True, 1), (2, False, 1), (2, True, 1), (4, True, 3), (8, True, 6), (8, False, 7),
-    (16, False, 15), (16, True, 12), (64, False, 63), (64, True, 48),
+    (11, False, 10), (12, False, 9), (16, False, 13), (16, True, 12), (64, False, 61), (64, True, 48),
 ])
 def test_auto_workers_leave_the_learner_its_cores(cores, on_cpu, workers):
     assert sizing.auto_num_workers(cores, on_cpu) == workers
+
+
+@pytest.mark.parametrize("cores,workers,on_cpu,pin", [
+    (16, 13, False, 3), (16, 12, False, 3), (16, 14, False, -1), (16, 15, False, -1), (8, 7, False, 1),
+    (8, 8, False, -1), (2, 1, False, 1), (1, 1, False, -1), (16, 12, True, -1), (64, 61, False, 3),
+])
+def test_auto_pinning_keeps_workers_off_an_accelerator_learners_cores(cores, workers, on_cpu, pin):
+    assert sizing.auto_pin_cpus(cores, workers, on_cpu) == pin
 
 
 @pytest.mark.parametrize("total,workers,envs", [(1024, 16, 64), (1024, 15, 69), (1920, 15, 128), (64, 1, 64),
@@ -68,6 +76,9 @@ def test_auto_flags_reach_the_run_config(tmp_path, capsys):
     # Without auto nothing changes and nothing is printed (the defaults: 2 x 32).
     run = _build([f"--logdir={tmp_path}"])
     assert (run.num_workers, run.envs_per_worker) == (2, 32) and "sized for" not in capsys.readouterr().out
+    # --pin_cpus=auto (the default) confines no worker when the learner computes on the CPU; a number stays.
+    assert run.pin_cpus == -1 and "kept off" not in capsys.readouterr().out
+    assert _build(["--pin_cpus=1", f"--logdir={tmp_path}"]).pin_cpus == 1
 
 
 @pytest.mark.parametrize("flag,code,message", [

@@ -1,6 +1,7 @@
 """Machine-sized runs: how many rollout workers, and environments per worker, suit this machine.
 
-``--num_workers=auto`` gives the workers every core the learner does not need; ``--envs_per_worker=auto``
+``--num_workers=auto`` gives the workers every core the learner does not need, and ``--pin_cpus=auto`` keeps them
+off the learner's cores when it feeds an accelerator; ``--envs_per_worker=auto``
 splits the environments a recipe was tuned with (its :class:`SizedFor`) over those workers, so the
 algorithm sees the same batch on any machine. Pure functions of the core count (tested as such); only
 :func:`available_cores` asks the operating system and :func:`learner_on_cpu` the learner's array library.
@@ -52,9 +53,14 @@ def learner_on_cpu(platform: str) -> bool:
 
 
 def learner_cores(cores: int, learner_on_cpu: bool) -> int:
-    """Cores kept for the learner process: one for its loop when it feeds an accelerator; a quarter of the
-    machine (at least one) when its own computation runs on the CPU too."""
-    return max(1, cores // 4) if learner_on_cpu else 1
+    """Cores kept for the learner process. Feeding an accelerator: three on a machine of 12 cores or more (its busy
+    host threads: the update's dispatch, the loop that fetches and publishes, the replay prefetch), else one; a
+    quarter of the machine (at least one) when its own computation runs on the CPU too. Measured (FastSAC Go1, H100
+    + 16 cores, docs/perf/learner_scaling.md section 8): 13 workers kept off 3 cores made 55-58 learner calls/s and
+    walked at 106-125 s; 15 workers sharing every core, 30-32 calls/s, 139-142 s or not by 160 s."""
+    if learner_on_cpu:
+        return max(1, cores // 4)
+    return 3 if cores >= 12 else 1
 
 
 def auto_num_workers(cores: int, learner_on_cpu: bool) -> int:
@@ -62,6 +68,16 @@ def auto_num_workers(cores: int, learner_on_cpu: bool) -> int:
     if cores < 1:
         raise ValueError(f"cores must be positive, got {cores}")
     return max(1, cores - learner_cores(cores, learner_on_cpu))
+
+
+def auto_pin_cpus(cores: int, num_workers: int, learner_on_cpu: bool) -> int:
+    """``--pin_cpus=auto``: with a learner on an accelerator, the workers kept off the learner's cores
+    (:func:`learner_cores`) when each still gets a core of its own; otherwise -1 (no affinity). A learner on the CPU
+    computes with every core (XLA's threads), so its workers are not confined."""
+    if learner_on_cpu:
+        return -1
+    keep = learner_cores(cores, learner_on_cpu)
+    return keep if 1 <= num_workers <= cores - keep else -1
 
 
 def auto_envs_per_worker(total_envs: int, num_workers: int) -> int:

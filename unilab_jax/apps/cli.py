@@ -90,8 +90,9 @@ flags.DEFINE_enum("utd_mode", "hold", ["hold", "free"], "off-policy: hold pauses
                   "more than --utd_window env steps behind the recipe's update-to-data ratio; free never pauses them")
 flags.DEFINE_integer("utd_window", 0, "with --utd_mode=hold: env steps the workers may run ahead of the ratio "
                      "(0: four learner calls' worth)")
-flags.DEFINE_integer("pin_cpus", -1, "worker CPU affinity: -1 none; K >= 0: each worker pinned to its share of the "
-                     "usable cores except the first K, which stay free for the learner process")
+flags.DEFINE(_CountOrAuto(), "pin_cpus", sizing.AUTO, "worker CPU affinity: -1 none; K >= 0: each worker pinned to "
+             "its share of the usable cores except the first K, which stay free for the learner process; auto: the "
+             "learner's cores kept free when it runs on an accelerator and the workers fit on the others")
 flags.DEFINE_string("devices", "1", "JAX learner: local accelerators to train on data-parallel, 'all' or a number "
                     "(the batch is split across them, parameters replicated; 1: the single-device path)")
 flags.DEFINE_string("ray_address", "", "off-policy: run rollout workers on every node of this Ray cluster, 'auto' or "
@@ -165,6 +166,24 @@ def size_for_machine(sized_for: sizing.SizedFor | None, opts: Any = FLAGS) -> No
           f"for {recipe})", flush=True)
 
 
+def _resolve_pin_cpus(opts: Any) -> None:
+    """Checks --pin_cpus and resolves ``auto`` (``sizing.auto_pin_cpus``; -1 where the OS sets no CPU affinity, or
+    for --serial runs, whose workers are threads of this process) into ``opts``, printing the choice."""
+    usable, affinity = sizing.available_cores(), hasattr(os, "sched_setaffinity")
+    if opts.pin_cpus == sizing.AUTO:
+        opts.pin_cpus = -1
+        if affinity and not opts.serial:
+            opts.pin_cpus = sizing.auto_pin_cpus(usable, opts.num_workers, sizing.learner_on_cpu(opts.platform))
+        if opts.pin_cpus > 0:
+            print(f"workers kept off {opts.pin_cpus} of the {usable} cores for the learner process (--pin_cpus="
+                  f"{opts.pin_cpus}; -1 turns it off)", flush=True)
+    elif not -1 <= opts.pin_cpus < usable:
+        raise FlagError(f"--pin_cpus must be -1 (off), auto, or leave the workers at least one of the {usable} usable "
+                        f"cores, got {opts.pin_cpus}")
+    elif opts.pin_cpus >= 0 and not affinity:
+        raise FlagError("--pin_cpus: this operating system sets no CPU affinity (Linux does); use -1 or auto")
+
+
 def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
               default_total_steps: int,
               sized_for: sizing.SizedFor | None = None, opts: Any = FLAGS) -> tuple[Any, Any, Any, dict[str, Any]]:
@@ -229,10 +248,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
             raise FlagError(f"--{name}={getattr(opts, name)!r}: choose one of {choices}")
     if not 0.0 <= opts.replay_hot_fraction <= 1.0:
         raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {opts.replay_hot_fraction}")
-    usable = len(os.sched_getaffinity(0))
-    if not -1 <= opts.pin_cpus < usable:
-        raise FlagError(f"--pin_cpus must be -1 (off) or leave the workers at least one of the {usable} usable "
-                        f"cores, got {opts.pin_cpus}")
+    _resolve_pin_cpus(opts)
     if opts.utd_window < 0:
         raise FlagError(f"--utd_window must be >= 0, got {opts.utd_window}")
     if opts.utd_window and (module.BUFFER != "replay" or opts.utd_mode != "hold"):
