@@ -96,7 +96,8 @@ def build_spec(config: CartpoleConfig) -> mujoco.MjSpec:
 
 
 # --------------------------------------------------------------------------------------------------
-# Task math on the shim (batched over envs; numpy in the workers, jax for an MJX variant).
+# Task math on the shim (batched over envs, any array backend). ``CartpoleBalance.step`` writes the same
+# operations out in numpy (bit-identical, checked by tests/tasks/test_cartpole.py); resets observe with these.
 # --------------------------------------------------------------------------------------------------
 def observation(qpos, qvel):
     """qpos, qvel [M, 2] (slider, hinge) -> obs [M, 5] = (x, cos th, sin th, xdot, thdot)."""
@@ -181,21 +182,40 @@ class CartpoleBalance(base.Task):
         return obs, obs.copy()
 
     def step(self, action: np.ndarray) -> base.StepOut:
-        a = np.clip(np.asarray(action, dtype=np.float64).reshape(self.num_envs, 1), -1.0, 1.0)
-        a = np.nan_to_num(a, nan=0.0)
+        # The math of ``observation``, ``reward_terms`` and ``terminated`` written out for numpy: the same
+        # operations on the same float64 values (bit-identical outputs, tests/tasks/test_cartpole.py), with
+        # cos/sin of the angle computed once and no shim dispatch: 16 envs step in ~110 us instead of ~165
+        # (a balancing policy; ~70 us of it the physics).
+        c, m = self.config, self.num_envs
+        # np.clip(x, lo, hi) is np.minimum(np.maximum(x, lo), hi) (NaN kept) behind a Python wrapper
+        a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64).reshape(m, 1), -1.0), 1.0)
+        a[np.isnan(a)] = 0.0
         unstable = self.sim.step(a)
         qpos, qvel = self.sim.qpos, self.sim.qvel
-        next_obs = self._obs()
-        terms = {k: (self.scales[k] * v).astype(np.float32) for k, v in reward_terms(qpos, qvel, a).items()}
-        reward = np.sum(np.stack(list(terms.values())), axis=0).astype(np.float32)
+        x, th, thdot = qpos[:, 0], qpos[:, 1], qvel[:, 1]
+        cos_th, sin_th = np.cos(th), np.sin(th)
+        next_obs = np.empty((m, 5), np.float32)
+        next_obs[:, 0] = x
+        next_obs[:, 1] = cos_th
+        next_obs[:, 2] = sin_th
+        next_obs[:, 3:5] = qvel
+        scaled = np.empty((4, m), np.float32)  # REWARD_TERMS' order
+        sc = self.scales
+        np.multiply(sc["upright"], np.minimum(np.maximum(cos_th, 0.0), 1.0), out=scaled[0], casting="same_kind")
+        np.multiply(sc["centered"], np.exp(-np.square(x)), out=scaled[1], casting="same_kind")
+        # 1 - clip(mean(a^2), 0, 1) for one action (a^2 >= 0: no lower clip)
+        np.multiply(sc["small_control"], 1.0 - np.minimum(np.square(a[:, 0]), 1.0), out=scaled[2],
+                    casting="same_kind")
+        np.multiply(sc["small_velocity"], np.exp(-0.1 * np.square(thdot)), out=scaled[3], casting="same_kind")
         if unstable.any():  # diverged physics: truncate with finite outputs
             next_obs[unstable] = 0.0
-            reward[unstable] = 0.0
-            for v in terms.values():
-                v[unstable] = 0.0
+            scaled[:, unstable] = 0.0
+        reward = scaled.sum(axis=0)  # the float32 terms added in order, as np.sum(np.stack(terms), axis=0)
+        terms = dict(zip(REWARD_TERMS, scaled, strict=True))
         self.steps += 1
-        term = terminated(qpos, self.config.rail_limit, self.config.max_angle) & ~unstable
-        trunc = ((self.steps >= self.config.episode_length) | unstable) & ~term
+        term = (np.abs(x) > c.rail_limit) | (np.abs(np.atan2(sin_th, cos_th)) > c.max_angle)
+        term &= ~unstable
+        trunc = ((self.steps >= c.episode_length) | unstable) & ~term
         done = np.flatnonzero(term | trunc)
         obs = next_obs
         if done.size:

@@ -11,6 +11,11 @@ a fresh-clone CI run ended on 129), and more under load: a fresh-clone CI run wi
 best evaluation (lowest seen 181) and the mean of the evaluations from 200k on (lowest seen 139; 165-199
 on an idle VM), both far above a random policy's 35. The evaluations run in their own process
 (``eval_process="on"``, the path of a learner on an accelerator), so this run also checks that path end to end.
+
+Budget 450k -> 300k (later session): evaluations at 100k, 200k and the final one at 300k. In the runs above
+the first three evaluations give a best of >= 181 and a mean from 200k on of >= 139 (167 on an idle VM);
+three runs at 300k (seeds 0-2): [169 200 187] [160 160 199] [165 194 197], best >= 187, mean from 200k >= 179.
+Thresholds unchanged.
 """
 
 import importlib.util
@@ -30,14 +35,14 @@ def test_sacflow_learns_cartpole(tmp_path):
     spec.loader.exec_module(recipe)
     module = algos.get("sacflow")
     config = apply_overrides(module.Config(), {**recipe.RECIPE, "flow_steps": 2})
-    run = RunConfig(algo="sacflow", task="cartpole_balance", num_workers=2, envs_per_worker=16, total_steps=450_000,
+    run = RunConfig(algo="sacflow", task="cartpole_balance", num_workers=2, envs_per_worker=16, total_steps=300_000,
                     seed=0, logdir=str(tmp_path / "run"), eval_envs=16, eval_every=100_000, eval_process="on")
     summary = Trainer(run, module, config, {}).train()
     rows = [json.loads(line) for line in open(os.path.join(summary["logdir"], "metrics.jsonl"))]
     assert summary["updates"] > 100 and not summary["interrupted"]
     assert all("loss/entropy" in r for r in rows if "loss/critic_loss" in r)
     evals = [(r["step"], r["eval/return"]) for r in rows if "eval/return" in r]
-    assert len(evals) >= 4, evals
+    assert len(evals) >= 3, evals
     later = [ret for step, ret in evals if step >= 200_000]
     assert max(ret for _, ret in evals) >= 165.0, evals
     assert sum(later) / len(later) >= 100.0, evals

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from unilab_jax.runtime.buffers import ReplayBuffer
+from unilab_jax.runtime.buffers import ReplayBuffer, row_checksums
 from unilab_jax.runtime.replay_store import (
     ReplayStore,
     RingSpiller,
@@ -194,6 +194,32 @@ def test_ring_spiller_copies_each_committed_row_once_and_counts_overruns(tmp_pat
     finally:
         store.close()
         ring.close()
+
+
+def test_rings_without_row_sums_commit_and_sample_the_same_rows_and_no_spiller_takes_them(tmp_path):
+    """Runs without a replay store make their rings with ``row_sums=False``: commits skip the checksums (nothing
+    else reads them), the rows and counters are the same, and a spiller refuses such a ring."""
+    with_sums, without = (ReplayBuffer.create(FIELDS, num_workers=1, envs_per_worker=4, capacity=40, row_sums=flag)
+                          for flag in (True, False))
+    store = ReplayStore(str(tmp_path), FIELDS, chunk_rows=16)
+    try:
+        untouched = without._data[0]["_row_sum"].copy()
+        for ring in (with_sums, without):
+            for _ in range(3):
+                _write_ring_step(ring, 0)
+        assert with_sums.count(0) == without.count(0) == 12
+        rows = {k: with_sums._data[0][k][:12] for k in FIELDS}
+        np.testing.assert_array_equal(with_sums._data[0]["_row_sum"][:12], row_checksums(rows, 12))
+        np.testing.assert_array_equal(without._data[0]["_row_sum"], untouched)
+        rng = (np.random.default_rng(3) for _ in range(2))
+        a, b = with_sums.sample(64, next(rng)), without.sample(64, next(rng))
+        assert all(np.array_equal(a[k], b[k]) for k in FIELDS)
+        with pytest.raises(ValueError, match="row_sums=True"):
+            RingSpiller(without, store)
+    finally:
+        store.close()
+        with_sums.close()
+        without.close()
 
 
 def test_tiered_sampler_mixes_every_minibatch_and_falls_back_to_a_nonempty_tier(tmp_path):

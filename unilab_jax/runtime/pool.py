@@ -119,6 +119,7 @@ class WorkerPool:
       horizon: T, control steps per trajectory slot (also the lockstep chunk in replay mode).
       slots_per_worker: K trajectory slots per worker.
       replay_capacity: transitions per worker region (replay buffers).
+      replay_row_sums: whether replay commits checksum their rows (what a replay store's spiller verifies).
       serial: run the workers in this process.
       wait_timeout: worker-side wait limit for weights / free slots (None: until stopped).
       poll: how often waits check for dead workers, seconds.
@@ -149,6 +150,7 @@ class WorkerPool:
         replay_capacity: int = 0,
         serial: bool = False,
         *,
+        replay_row_sums: bool = True,
         wait_timeout: float | None = None,
         poll: float = 0.05,
         worker_threads: int = 1,
@@ -207,7 +209,8 @@ class WorkerPool:
                 self.buffer: TrajectoryBuffer | ReplayBuffer = TrajectoryBuffer.create(
                     self.fields, num_workers, envs_per_worker, horizon, slots_per_worker)
             else:
-                self.buffer = ReplayBuffer.create(self.fields, num_workers, envs_per_worker, replay_capacity)
+                self.buffer = ReplayBuffer.create(self.fields, num_workers, envs_per_worker, replay_capacity,
+                                                  row_sums=replay_row_sums)
             self._res.closers.append(self.buffer)
         except BaseException:
             self._res.shutdown()

@@ -124,7 +124,8 @@ class RayPool:
         self.spec = probe.spec
         probe.close()
         self.fields = transition_layout(self.spec, algo.extras(self.spec.action_dim))
-        self.buffer = ReplayBuffer.create(self.fields, self.num_workers, envs_per_worker, replay_capacity)
+        self.buffer = ReplayBuffer.create(self.fields, self.num_workers, envs_per_worker, replay_capacity,
+                                          row_sums=pool_kwargs.get("replay_row_sums", True))
         remote = ray.remote(HostRollouts)
         for h, node in enumerate(nodes):
             strategy = NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)

@@ -502,10 +502,11 @@ class RingSpiller:
     """
 
     def __init__(self, ring: ReplayBuffer, store: ReplayStore, max_rounds: int = 100):
+        if not ring.handle.row_sums:
+            raise ValueError("a ring spiller verifies the rows' checksums: the ring needs row_sums=True")
         self.ring, self.store, self.max_rounds = ring, store, max_rounds
         self.cursors = np.zeros(ring.num_workers, np.int64)
-        self.spilled = 0
-        self.lost = 0
+        self.spilled = self.lost = 0
 
     def spill(self) -> int:
         """Appends every row committed since the last call; returns how many."""

@@ -322,7 +322,7 @@ class Trainer:
                            algo_module=self.algo.__name__, weight_template=weights,
                            horizon=cfg.horizon, serial=run.serial,
                            replay_capacity=max(cfg.replay_capacity // run.num_workers, 1)
-                           if replay else 0,
+                           if replay else 0, replay_row_sums=bool(run.replay_dir),
                            max_env_steps=max(run.total_steps - counters["env_steps"], 0) if replay else None)
         if run.ray_address:
             from unilab_jax.runtime.ray_pool import RayPool  # Ray is imported only for --ray_address
