@@ -16,6 +16,7 @@ import os
 import subprocess
 import sys
 
+import jax
 import numpy as np
 import pytest
 
@@ -146,19 +147,37 @@ def test_large_weights_are_published_by_the_background_thread(tmp_path, monkeypa
     assert max(r["perf/worker_policy_version_min"] for r in train) >= 2
 
 
-def test_serial_replay_loop_holds_the_ratio(tmp_path):
+def _update_compiles(caplog, train):
+    """``train()``'s result and the threads that compiled the learner's update (XLA's compile log; set for every
+    thread: ``jax.log_compiles()`` would set it for this one only)."""
+    jax.config.update("jax_log_compiles", True)
+    try:
+        with caplog.at_level("WARNING"):
+            out = train()
+    finally:
+        jax.config.update("jax_log_compiles", False)
+    return out, [r.threadName for r in caplog.records if "XLA compilation of jit(traced_update)" in r.getMessage()]
+
+
+def test_serial_replay_loop_holds_the_ratio(tmp_path, caplog):
     recipe = {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32, "updates_per_call": 2,
               "publish_every": 4, "learning_starts": 256, "replay_capacity": 4_096, "utd": 0.05}
-    config, summary, rows = _train(tmp_path, "td3", recipe, 2_000, serial=True, eval_envs=2)
+    (config, summary, rows), compiled_by = _update_compiles(
+        caplog, lambda: _train(tmp_path, "td3", recipe, 2_000, serial=True, eval_envs=2, precompile="on"))
+    # The update compiled once, ahead of the first call, for the host-sampled batches (Trainer._start_precompile).
+    assert compiled_by == ["precompile"]
     _check_replay_loop(config, summary, rows, 2_000)
     # Serial workers step only when the learner asks: the ratio is met, not merely bounded.
     assert summary["updates"] * 2 >= 0.05 * (summary["env_steps"] - 256) * 0.8
 
 
-def test_serial_replay_loop_on_device_holds_the_ratio(tmp_path):
+def test_serial_replay_loop_on_device_holds_the_ratio(tmp_path, caplog):
     recipe = {"actor_hidden": (8,), "critic_hidden": (8,), "batch_size": 32, "updates_per_call": 2,
               "publish_every": 4, "learning_starts": 256, "replay_capacity": 4_096, "utd": 0.05}
-    config, summary, rows = _train(tmp_path, "sac", recipe, 2_000, serial=True, eval_envs=2, replay_on_device="on")
+    (config, summary, rows), compiled_by = _update_compiles(
+        caplog, lambda: _train(tmp_path, "sac", recipe, 2_000, serial=True, eval_envs=2, replay_on_device="on",
+                                      precompile="on"))
+    assert compiled_by == ["precompile"]  # once, ahead, for the device mirror's batches
     _check_replay_loop(config, summary, rows, 2_000)
     assert summary["updates"] * 2 >= 0.05 * (summary["env_steps"] - 256) * 0.8
     assert all(r["perf/replay_upload_rows"] > 0 for r in rows if "loss/critic_loss" in r)

@@ -184,3 +184,20 @@ def test_learns_a_contextual_bandit(name):
     final = error(state)
     assert start > 0.5 and final < 0.1, f"{name}: action error {start:.3f} -> {final:.3f}; last metrics {metrics}"
     assert learner.trace_count == 1
+
+
+def test_precompile_leaves_the_first_update_nothing_to_compile(caplog):
+    """``precompile`` (the trainer's compile while the rings fill) builds the very program the first update runs."""
+    mod = algos.get("fastsac")
+    cfg = dataclasses.replace(mod.Config(), **{**COMMON, **SETUPS["fastsac"][0]})
+    learner = offpolicy_jax.SACFamilyLearner(mod, cfg, SPEC, compiler_options=FAST_COMPILE)
+    state = learner.init(jax.random.PRNGKey(7))
+    batch = _batch(np.random.default_rng(7), cfg.updates_per_call, terminated=0.0)
+    learner.precompile(state, {k: np.zeros_like(v) for k, v in batch.items()})
+    assert learner.trace_count == 1 and int(state.steps) == 0  # traced and compiled; the state untouched
+    with jax.log_compiles(True), caplog.at_level("WARNING"):
+        state, metrics = learner.update(state, batch)
+        jax.block_until_ready(metrics)
+    compiles = [r.getMessage() for r in caplog.records if "traced_update" in r.getMessage()]
+    assert compiles == [] and learner.trace_count == 1, compiles
+    assert int(state.steps) == cfg.updates_per_call

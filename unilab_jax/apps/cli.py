@@ -86,6 +86,9 @@ flags.DEFINE_enum("replay_on_device", "auto", ["auto", "on", "off"], "off-policy
                   "CPU or --replay_dir is set)")
 flags.DEFINE_enum("eval_process", "auto", ["auto", "on", "off"], "run the evaluations' episodes in a process of "
                   "their own, off the learner process (auto: when the learner runs on an accelerator and not --serial)")
+flags.DEFINE_enum("precompile", "auto", ["auto", "on", "off"], "off-policy, jax learner on one device: compile the "
+                  "update while the workers fill the replay rings, not at the first update (auto: when the learner "
+                  "runs on an accelerator)")
 flags.DEFINE_enum("utd_mode", "hold", ["hold", "free"], "off-policy: hold pauses the workers when the learner falls "
                   "more than --utd_window env steps behind the recipe's update-to-data ratio; free never pauses them")
 flags.DEFINE_integer("utd_window", 0, "with --utd_mode=hold: env steps the workers may run ahead of the ratio "
@@ -114,7 +117,7 @@ RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker"
              "eval_every", "eval_envs", "eval_process", "checkpoint_every", "video_every", "serial", "pin_cpus",
              "devices", "wandb_project", "profile_dir", "profile_start", "profile_updates", "config", "task_config")
 REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
-                "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
+                "precompile", "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
 
 
 def run_flags(algo: str) -> list[str]:
@@ -243,7 +246,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise FlagError(f"--replay_dir: {algo} does not use a replay buffer")
     if opts.replay_on_device == "on" and (module.BUFFER != "replay" or opts.platform != "jax" or opts.replay_dir):
         raise FlagError("--replay_on_device=on needs an off-policy algorithm, --platform=jax and no --replay_dir")
-    for name, choices in (("replay_on_device", ("auto", "on", "off")), ("utd_mode", ("hold", "free"))):
+    for name, choices in (("replay_on_device", ("auto", "on", "off")), ("utd_mode", ("hold", "free")),
+                          ("precompile", ("auto", "on", "off"))):
         if getattr(opts, name) not in choices:  # absl checks the flags; train()'s keywords are checked here
             raise FlagError(f"--{name}={getattr(opts, name)!r}: choose one of {choices}")
     if not 0.0 <= opts.replay_hot_fraction <= 1.0:
@@ -298,6 +302,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     checkpoint_every=opts.checkpoint_every, serial=opts.serial, replay_dir=opts.replay_dir,
                     replay_disk_gb=opts.replay_disk_gb, replay_hot_fraction=opts.replay_hot_fraction,
                     replay_chunk_rows=opts.replay_chunk_rows, replay_on_device=opts.replay_on_device,
+                    precompile=opts.precompile,
                     utd_mode=opts.utd_mode, utd_window=opts.utd_window, pin_cpus=opts.pin_cpus,
                     video_every=opts.video_every, devices=opts.devices, ray_address=opts.ray_address,
                     ray_workers_per_host=opts.ray_workers_per_host, wandb_project=opts.wandb_project,

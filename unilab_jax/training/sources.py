@@ -165,6 +165,22 @@ class ReplaySource:
         if self._window is not None:
             self._hold(self._need + self._window)
 
+    def example_batch(self) -> dict:
+        """Zeros shaped, typed and placed like every batch ``produce`` hands the learner (through the device mirror's
+        gather when there is one), drawn from nothing: what the learner compiles its update for while the rings
+        fill (``learner.precompile``)."""
+        u, (b, b_prior) = self._cfg.updates_per_call, self._rows
+        prior = None
+        if b_prior:
+            prior = {k: self._xp.from_numpy(np.zeros((u, b_prior, *v.shape[1:]), v.dtype))
+                     for k, v in self._prior.items()}
+        if self._mirror is not None:
+            return with_prior(self._mirror.take(self._mirror.example_draw((u, b))), prior)
+        layout = self._pool.fields
+        online = {k: self._xp.from_numpy(np.zeros((u, b, *layout[k][0]), layout[k][1]))
+                  for k in replay_fields(self._pool.spec)}
+        return with_prior(online, prior)
+
     def _env_steps(self) -> int:
         return self._steps0 + self._pool.env_steps()
 
