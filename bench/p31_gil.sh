@@ -10,6 +10,7 @@
 #   u16       16 gradient steps per learner call instead of the recipe's 8 (the same update-to-data ratio)
 #   nocb      no XLA command buffers (--xla_gpu_enable_command_buffer=): the scan's steps as plain kernel launches
 #   wNpK      N workers kept off the first K cores (--pin_cpus=K)
+#   noprec    the update compiled at its first call, not while the rings fill (--precompile=off)
 # Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR), so runs compare like for
 # like whatever ran before on the machine. SEEDS (default: SEED) runs every variant for each seed, variants inner.
 #   VARIANTS="base w15" SEEDS="0 1 2" MAXS=160 bash bench/p31_gil.sh
@@ -26,6 +27,7 @@ for v in ${VARIANTS:-base noeval swi}; do
   [ "$v" = swi ] && pp=/tmp/swi:$PYTHONPATH
   xf=${XLA_FLAGS:-}; [ "$v" = nocb ] && xf="$xf --xla_gpu_enable_command_buffer="
   [ "$v" = u16 ] && extra=(--extra=--config=updates_per_call=16)
+  [ "$v" = noprec ] && extra=(--extra=--precompile=off)
   [ "$v" = w15 ] && extra=(--extra=--num_workers=15 --extra=--pin_cpus=-1)
   [[ "$v" =~ ^w([0-9]+)p([0-9]+)$ ]] && extra=(--extra=--num_workers=${BASH_REMATCH[1]} --extra=--pin_cpus=${BASH_REMATCH[2]})
   JAX_COMPILATION_CACHE_DIR=$cache XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async \
