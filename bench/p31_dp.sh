@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Issue 31 on the 2-GPU machine: the data-parallel FastSAC learner (Go1 sizes, bf16, 8192 rows per device), one device
 # against two, with XLA's defaults and with the variants in VARIANTS (name=XLA flags added); the default's 3 steady
-# calls per device count traced and summarised per device. Results under $OUT.
+# calls per device count traced and summarised per device; then the critic ensemble split over the devices
+# (--device_split critics, the minibatch of 8192 whole on each). Results under $OUT.
 #   VARIANTS="nocb=--xla_gpu_enable_command_buffer=" bash bench/p31_dp.sh
 set -u
 OUT=${OUT:-/tmp/p31_dp}; mkdir -p "$OUT"
@@ -18,4 +19,5 @@ for n in 1 2; do
     > "$OUT/trace_devices_$n.txt" 2>&1
   echo "== devices $n"; head -45 "$OUT/trace_devices_$n.txt"
 done
+so critics "" "--device_split critics"
 for v in ${VARIANTS:-}; do so "${v%%=*}" "${v#*=}"; done

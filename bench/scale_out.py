@@ -65,11 +65,11 @@ def learner(args: argparse.Namespace) -> list[dict]:
     module = algos.get("fastsac")
     rows = []
     for n in args.devices:
-        config = apply_overrides(module.Config(), {"batch_size": n * args.batch_per_device,
-                                                   "compute_dtype": args.compute_dtype})
+        batch = args.batch_per_device * (n if args.device_split == "batch" else 1)
+        config = apply_overrides(module.Config(), {"batch_size": batch, "compute_dtype": args.compute_dtype})
         plain = algos.make_learner(module, "jax", config, GO1)
         traced_in = plain.compute_dtype  # DataParallel compiles plain.traced_update, in this dtype
-        lrn = sharding.make(plain, n)
+        lrn = sharding.make(plain, n, args.device_split)
         put = getattr(lrn, "from_numpy", jax.numpy.asarray)
         host = _replay_batch(np.random.default_rng(0), config.updates_per_call, config.batch_size)
         batch = {k: put(v) for k, v in host.items()}
@@ -91,7 +91,8 @@ def learner(args: argparse.Namespace) -> list[dict]:
                     state, metrics = lrn.update(state, batch)
                 jax.block_until_ready((state, metrics))
         steady = float(np.median(times))
-        rows.append({"devices": n, "batch": config.batch_size, "batch_per_device": args.batch_per_device,
+        rows.append({"devices": n, "device_split": args.device_split, "batch": config.batch_size,
+                     "batch_per_device": args.batch_per_device,
                      "updates_per_call": config.updates_per_call, "compute_dtype": plain.compute_dtype,
                      "matmuls_traced_in": traced_in, "first_call_s": first,
                      "steady_s": steady, "returns_after_s": float(np.median(returns)),
@@ -190,7 +191,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("part", choices=["learner", "rollouts"])
     ap.add_argument("--devices", type=int, nargs="+", default=[1, 2], help="learner: device counts (first: baseline)")
-    ap.add_argument("--batch_per_device", type=int, default=8192)
+    ap.add_argument("--batch_per_device", type=int, default=8192,
+                    help="learner: minibatch rows per device (with --device_split=critics: the whole minibatch)")
+    ap.add_argument("--device_split", default="batch", choices=["batch", "critics"],
+                    help="learner: split the minibatch over the devices, or the critic ensemble (training/sharding.py)")
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--ray_address", default="auto", help="rollouts: the cluster (ignored with --local_nodes)")
     ap.add_argument("--local_nodes", type=int, default=0, help="rollouts: start a local cluster of this many nodes")

@@ -39,8 +39,9 @@ def _batches(rng: np.random.Generator, shape: tuple[int, int], obs_dim: int, act
     return out
 
 
-def _compare(name: str) -> dict:
-    """Runs K updates on one device and on two; returns the largest absolute differences."""
+def _compare(name: str, split: str = "batch") -> dict:
+    """Runs K updates on one device and on two (the batch or the critics split); returns the largest absolute
+    differences."""
     import jax
 
     from tasks.base import TaskSpec
@@ -65,22 +66,29 @@ def _compare(name: str) -> dict:
                                                    "batch_size": 64, "updates_per_call": 2})
         batches = _batches(rng, (2, 64), 6, 2, {})
     single = algos.make_learner(module, "jax", config, spec)
-    sharded = sharding.make(algos.make_learner(module, "jax", config, spec), 2)
+    sharded = sharding.make(algos.make_learner(module, "jax", config, spec), 2, split)
     assert isinstance(sharded, sharding.DataParallel) and sharded.num_devices == 2
     s1, s2 = single.init(jax.random.key(0)), sharded.init(jax.random.key(0))
     for b in batches:
         s1, m1 = single.update(s1, {k: jax.numpy.asarray(v) for k, v in b.items()})
         s2, m2 = sharded.update(s2, {k: sharded.from_numpy(v) for k, v in b.items()})
     leaves2 = jax.tree_util.tree_leaves(s2)
-    assert all(len(x.sharding.device_set) == 2 and x.sharding.is_fully_replicated
-               for x in leaves2 if hasattr(x, "sharding"))
+    assert all(len(x.sharding.device_set) == 2 for x in leaves2 if hasattr(x, "sharding"))
+    # Batch split: every leaf replicated. Critics split: each device holds one of the two critics (every leaf of
+    # the critics, their targets and optimizer moments), the rest replicated.
+    split_leaves = [x for x in leaves2 if hasattr(x, "sharding") and not x.sharding.is_fully_replicated]
+    assert all(x.addressable_shards[0].data.shape[0] == x.shape[0] // 2 for x in split_leaves)
+    critic_leaves = sum(len(jax.tree_util.tree_leaves(getattr(s2, f))) for f in sharding.CRITIC_FIELDS
+                        if hasattr(s2, f))
+    n_split = len(split_leaves)
+    leaves2 = [x for x in leaves2 if not hasattr(x, "sharding") or x.sharding.is_fully_replicated]
 
     def diff(a, b):
         a, b = np.asarray(jax.random.key_data(a) if jax.numpy.issubdtype(a.dtype, jax.dtypes.prng_key) else a), \
             np.asarray(jax.random.key_data(b) if jax.numpy.issubdtype(b.dtype, jax.dtypes.prng_key) else b)
         return float(np.max(np.abs(a.astype(np.float64) - b.astype(np.float64)))) if a.size else 0.0
 
-    state = max(diff(a, b) for a, b in zip(jax.tree_util.tree_leaves(s1), leaves2))
+    state = max(diff(a, b) for a, b in zip(jax.tree_util.tree_leaves(s1), jax.tree_util.tree_leaves(s2)))
     before = jax.tree_util.tree_leaves(single.init(jax.random.key(0)))
     moved = max(diff(a, b) for a, b in zip(before, jax.tree_util.tree_leaves(s1))
                 if jax.numpy.issubdtype(a.dtype, jax.numpy.floating))
@@ -88,7 +96,8 @@ def _compare(name: str) -> dict:
     # Each device's copy of the replicated state
     replicas = max(diff(x.addressable_shards[0].data, x.addressable_shards[1].data) for x in leaves2
                    if hasattr(x, "addressable_shards"))
-    return {"state": state, "metrics": metrics, "moved": moved, "replicas": replicas}
+    return {"state": state, "metrics": metrics, "moved": moved, "replicas": replicas, "split_leaves": n_split,
+            "critic_leaves": critic_leaves}
 
 
 def _dtype() -> dict:
@@ -154,11 +163,15 @@ def _train(tmp: str) -> dict:
     for algo, recipe, extra in [
         ("fastsac", {"actor_hidden": (32, 32), "critic_hidden": (32, 32), "batch_size": 64, "updates_per_call": 2,
                      "learning_starts": 256, "utd": 0.5, "num_atoms": 11}, {"replay_on_device": "on"}),
+        ("fastsac_critics", {"actor_hidden": (32, 32), "critic_hidden": (32, 32), "batch_size": 64,
+                             "updates_per_call": 2, "learning_starts": 256, "utd": 0.5, "num_atoms": 11},
+         {"replay_on_device": "on", "device_split": "critics"}),
         ("ppo", {"actor_hidden": (32, 32), "critic_hidden": (32, 32), "horizon": 8, "num_minibatches": 2}, {}),
     ]:
-        module = algos.get(algo)
-        run = RunConfig(algo=algo, task="cartpole_balance", num_workers=2, envs_per_worker=8, total_steps=1_024,
-                        logdir=os.path.join(tmp, algo), serial=True, eval_envs=2, devices="2", **extra)
+        module = algos.get(algo.split("_")[0])
+        run = RunConfig(algo=module.__name__.rsplit(".", 1)[-1], task="cartpole_balance", num_workers=2,
+                        envs_per_worker=8, total_steps=1_024, logdir=os.path.join(tmp, algo), serial=True, eval_envs=2,
+                        devices="2", **extra)
         trainer = Trainer(run, module, apply_overrides(module.Config(), recipe), {})
         assert isinstance(trainer.learner, sharding.DataParallel)
         summary = trainer.train()
@@ -195,16 +208,20 @@ def _run_script(*args: str, tmp: str = "") -> dict:
 
 
 def test_sharded_updates_equal_single_device(tmp_path):
-    result = _run_script("fastsac", "ppo", "mirror", "dtype", "train", tmp=str(tmp_path))
-    for name in ("fastsac", "ppo"):
+    result = _run_script("fastsac", "ppo", "fastsac:critics", "td3:critics", "mirror", "dtype", "train",
+                         tmp=str(tmp_path))
+    for name in ("fastsac", "ppo", "fastsac:critics", "td3:critics"):
         r = result[name]
         assert r["moved"] > 1e-3, r  # the updates changed the state, so equality is not trivial
         assert r["state"] <= ATOL and r["metrics"] <= ATOL, (name, r)
-        assert r["replicas"] == 0.0, (name, r)  # the devices' copies of the state are the same, bit for bit
+        assert r["replicas"] == 0.0, (name, r)  # the devices' copies of the replicated leaves are the same, bit for bit
+        # Batch split: nothing split; critics split: exactly the critic fields' ensemble leaves (not their counts)
+        assert r["split_leaves"] == 0 if name in ("fastsac", "ppo") else 0 < r["split_leaves"] < r["critic_leaves"], r
     assert result["mirror"] == {"same": True, "split": [2, "batch"], "data_devices": 2}
     assert result["dtype"] == {"float32": False, "bfloat16": True}  # the sharded program keeps the learner's dtype
     # The Trainer with --devices=2 (serial workers, tiny budgets): it updates and evaluates.
     assert result["train"]["fastsac"]["updates"] > 0 and result["train"]["ppo"]["updates"] == 1_024 // 128
+    assert result["train"]["fastsac_critics"]["updates"] > 0  # --device_split=critics through the replicated mirror
     assert all(r["return"] > 0 for k, r in result["train"].items() if k != "ppo_resumed_updates"), result["train"]
     assert result["train"]["ppo_resumed_updates"] == 2_048 // 128
 
@@ -226,5 +243,5 @@ if __name__ == "__main__":
     results = {}
     for what in sys.argv[1:]:
         results[what] = {"mirror": _mirror, "dtype": _dtype, "train": lambda: _train(os.environ["SHARDING_TMP"])}.get(
-            what, lambda what=what: _compare(what))()
+            what, lambda what=what: _compare(*what.split(":")))()
     print(json.dumps(results))

@@ -98,6 +98,9 @@ flags.DEFINE(_CountOrAuto(), "pin_cpus", sizing.AUTO, "worker CPU affinity: -1 n
              "learner's cores kept free when it runs on an accelerator and the workers fit on the others")
 flags.DEFINE_string("devices", "1", "JAX learner: local accelerators to train on data-parallel, 'all' or a number "
                     "(the batch is split across them, parameters replicated; 1: the single-device path)")
+flags.DEFINE_enum("device_split", "batch", ["batch", "critics"], "with --devices > 1: split each minibatch over "
+                  "the devices (batch) or an off-policy learner's critic ensemble, each device holding some of its "
+                  "critics (critics)")
 flags.DEFINE_string("ray_address", "", "off-policy: run rollout workers on every node of this Ray cluster, 'auto' or "
                     "HOST:PORT of its head (empty: this host only; Ray is not imported)")
 flags.DEFINE_integer("ray_workers_per_host", 0, "with --ray_address: worker processes on each node other than the "
@@ -117,7 +120,7 @@ RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker"
              "eval_every", "eval_envs", "eval_process", "checkpoint_every", "video_every", "serial", "pin_cpus",
              "devices", "wandb_project", "profile_dir", "profile_start", "profile_updates", "config", "task_config")
 REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
-                "precompile", "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
+                "precompile", "device_split", "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
 
 
 def run_flags(algo: str) -> list[str]:
@@ -278,7 +281,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
 
         try:
             sharding.check_run(opts.devices, opts.platform, config, module.BUFFER, opts.num_workers,
-                               opts.envs_per_worker)
+                               opts.envs_per_worker, opts.device_split)
         except ValueError as e:
             raise FlagError(str(e)) from e
     if opts.wandb_project:
@@ -304,7 +307,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     replay_chunk_rows=opts.replay_chunk_rows, replay_on_device=opts.replay_on_device,
                     precompile=opts.precompile,
                     utd_mode=opts.utd_mode, utd_window=opts.utd_window, pin_cpus=opts.pin_cpus,
-                    video_every=opts.video_every, devices=opts.devices, ray_address=opts.ray_address,
+                    video_every=opts.video_every, devices=opts.devices, device_split=opts.device_split,
+                    ray_address=opts.ray_address,
                     ray_workers_per_host=opts.ray_workers_per_host, wandb_project=opts.wandb_project,
                     profile_dir=opts.profile_dir, profile_start=opts.profile_start,
                     profile_updates=opts.profile_updates)

@@ -16,6 +16,14 @@ ones' traced in their ``compute_dtype``, so bf16 matmuls stay bf16 here) and com
 No ``pmap`` and no per-device state copies: one global array per leaf, placed with ``jax.device_put``
 (``jax.device_put_replicated`` / ``device_put_sharded`` are gone in jax 0.11). One device is not wrapped
 at all (:func:`make`), so ``--devices=1`` is exactly the single-device path.
+
+``split="critics"`` (``--device_split=critics``, off-policy learners): where splitting the batch cannot pay (at a
+fixed batch per device each device does one device's work per gradient step, docs/perf/learner_scaling.md sections
+2 and 6), the critic ensemble is split instead: every leaf of the state's critic fields (``CRITIC_FIELDS``: the
+critics, their targets and optimizer state, ``[E, ...]`` with E members) is split along its member axis, each device
+holding E / N members, and the batch, the actor and the rest are replicated. GSPMD partitions the critics' forward and
+backward by member; what crosses devices per step is what mixes members (the minimum or mean over critics, the
+actor's gradient through them).
 """
 
 from __future__ import annotations
@@ -28,6 +36,9 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 AXIS = "batch"
+SPLITS = ("batch", "critics")
+# The off-policy learners' state fields that hold the critic ensemble (every leaf's leading axis: its members).
+CRITIC_FIELDS = ("critic", "target_critic", "critic_opt")
 # As the learners: the state is donated on accelerators only (unilab_jax/algos/ppo/learner_jax.py says why).
 DONATE_STATE = 0 if jax.default_backend() != "cpu" else ()
 
@@ -63,31 +74,38 @@ def check_batch(n_devices: int, batch_axis: int, what: str) -> None:
 
 
 class DataParallel:
-    """A learner updated data-parallel over ``devices`` (see the module docstring).
+    """A learner updated over ``devices``, its batch split (``split="batch"``) or its critic ensemble
+    (``split="critics"``; see the module docstring).
 
     ``init``, ``update`` and ``weights`` behave as the wrapped learner's; ``from_numpy(array)`` places a
-    host batch field straight onto the devices, split along axis 1 (the trainer's batch sources use it in
-    place of the shim's); ``replicate(state)`` places a state read from a checkpoint.
+    host batch field straight onto the devices (split along axis 1, or replicated with the critics split; the
+    trainer's batch sources use it in place of the shim's); ``place(state)`` places a state read from a checkpoint.
     """
 
-    def __init__(self, learner: Any, devices: list[Any], donate_argnums: Any = ()):
-        self.learner = learner
+    def __init__(self, learner: Any, devices: list[Any], donate_argnums: Any = (), split: str = "batch"):
+        if split not in SPLITS:
+            raise ValueError(f"device split must be one of {SPLITS}, got {split!r}")
+        self.learner, self.split = learner, split
         self.config, self.spec = learner.config, learner.spec
         self.mesh = Mesh(np.asarray(devices), (AXIS,))
         self.replicated = NamedSharding(self.mesh, P())
-        self.batch_sharding = NamedSharding(self.mesh, P(None, AXIS))
-        self._update = jax.jit(learner.traced_update, in_shardings=(self.replicated, self.batch_sharding),
-                               out_shardings=self.replicated, donate_argnums=donate_argnums)
+        self.batch_sharding = NamedSharding(self.mesh, P(None, AXIS)) if split == "batch" else self.replicated
+        # Where each state leaf lives: replicated, or (critics) a tree read off the learner's initial state.
+        self.state_sharding: Any = self.replicated
+        if split == "critics":
+            self.state_sharding = critic_shardings(learner.init(jax.random.key(0)), self.mesh)
+        self._update = jax.jit(learner.traced_update, in_shardings=(self.state_sharding, self.batch_sharding),
+                               out_shardings=(self.state_sharding, self.replicated), donate_argnums=donate_argnums)
 
     @property
     def num_devices(self) -> int:
         return self.mesh.size
 
     def init(self, key: jax.Array) -> Any:
-        return self.replicate(self.learner.init(key))
+        return self.place(self.learner.init(key))
 
-    def replicate(self, state: Any) -> Any:
-        return jax.device_put(state, self.replicated)
+    def place(self, state: Any) -> Any:
+        return jax.device_put(state, self.state_sharding)
 
     def from_numpy(self, array: Any) -> jax.Array:
         return jax.device_put(array, self.batch_sharding)
@@ -105,24 +123,53 @@ class DataParallel:
         return getattr(self.learner, name)
 
 
-def make(learner: Any, devices: int | None) -> Any:
+def critic_shardings(state: Any, mesh: Mesh) -> Any:
+    """A sharding per leaf of ``state`` (a learner's state NamedTuple): the leaves of ``CRITIC_FIELDS`` whose leading
+    axis is the ensemble's E members split along it over ``mesh``, every other leaf replicated."""
+    missing = [f for f in CRITIC_FIELDS if f not in getattr(state, "_fields", ())]
+    if missing:
+        raise ValueError(f"--device_split=critics: the learner's state has no critic ensemble ({missing} missing)")
+    members = jax.tree.leaves(state.critic)[0].shape[0]
+    if members % mesh.size:
+        raise ValueError(f"--device_split=critics: the ensemble's {members} critics do not divide over "
+                         f"{mesh.size} devices")
+    split, whole = NamedSharding(mesh, P(AXIS)), NamedSharding(mesh, P())
+
+    def field(name: str, value: Any) -> Any:
+        if name not in CRITIC_FIELDS:
+            return jax.tree.map(lambda _: whole, value)
+        return jax.tree.map(lambda x: split if np.ndim(x) >= 1 and x.shape[0] == members else whole, value)
+
+    return type(state)(**{name: field(name, getattr(state, name)) for name in state._fields})
+
+
+def make(learner: Any, devices: int | None, split: str = "batch") -> Any:
     """``learner`` itself for one device (today's path, untouched), else a :class:`DataParallel` over the
-    first ``devices`` local devices (None: all)."""
+    first ``devices`` local devices (None: all), split as ``split`` says."""
     chosen = local_devices(devices)
     if len(chosen) == 1:
         return learner
-    return DataParallel(learner, chosen, DONATE_STATE)
+    return DataParallel(learner, chosen, DONATE_STATE, split)
 
 
-def check_run(devices: str, platform: str, config: Any, buffer: str, num_workers: int, envs_per_worker: int) -> int:
-    """Validates ``--devices`` for a run (before any worker starts); returns the number of devices.
+def check_run(devices: str, platform: str, config: Any, buffer: str, num_workers: int, envs_per_worker: int,
+              split: str = "batch") -> int:
+    """Validates ``--devices`` and ``--device_split`` for a run (before any worker starts); returns the number of
+    devices.
 
     The batch axis that is split: a replay minibatch's ``batch_size``; a trajectory batch's environments
-    (``num_workers * envs_per_worker``, every slot of a lock-step or async collect)."""
+    (``num_workers * envs_per_worker``, every slot of a lock-step or async collect). The critics split needs an
+    off-policy learner (the ensemble's size is checked against the devices when the learner is wrapped)."""
     n = parse_devices(devices)
     if platform != "jax" and devices != "1":
         raise ValueError(f"--devices={devices}: data-parallel learners are JAX's (--platform=jax)")
+    if split not in SPLITS:
+        raise ValueError(f"--device_split={split!r}: choose one of {SPLITS}")
     n = len(local_devices(n))
+    if split == "critics":
+        if buffer != "replay":
+            raise ValueError("--device_split=critics: the off-policy learners' critic ensemble only")
+        return n
     if buffer == "replay":
         check_batch(n, int(config.batch_size), "batch_size")
     else:
@@ -131,6 +178,7 @@ def check_run(devices: str, platform: str, config: Any, buffer: str, num_workers
 
 
 def for_run(learner: Any, run: Any, config: Any, buffer: str) -> DataParallel | None:
-    """The :class:`DataParallel` learner of ``run.devices`` (checked), None for one device."""
-    n = check_run(run.devices, run.platform, config, buffer, run.num_workers, run.envs_per_worker)
-    return make(learner, n) if n > 1 else None
+    """The :class:`DataParallel` learner of ``run.devices`` and ``run.device_split`` (checked), None for one
+    device."""
+    n = check_run(run.devices, run.platform, config, buffer, run.num_workers, run.envs_per_worker, run.device_split)
+    return make(learner, n, run.device_split) if n > 1 else None

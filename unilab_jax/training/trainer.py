@@ -107,6 +107,9 @@ class RunConfig:
     # JAX learner: "1" (one device, the plain path), "N" or "all": data-parallel over the first N local devices
     # (unilab_jax/training/sharding.py; the batch axis must divide evenly).
     devices: str = "1"
+    # With devices > 1: what is split over them, "batch" (data parallel) or "critics" (an off-policy learner's critic
+    # ensemble, its members divided over the devices; training/sharding.py).
+    device_split: str = "batch"
     # Off-policy: rollouts on every node of a Ray cluster ("auto" or HOST:PORT of its head; "" = this host only,
     # Ray not imported). The learner's node runs num_workers workers, every other node ray_workers_per_host
     # (0: num_workers). unilab_jax/runtime/ray_pool.py.
@@ -135,7 +138,7 @@ class RunConfig:
                 raise ValueError(f"RunConfig: {name} must be >= 0, got {getattr(self, name)!r}")
         for name, choices in (("platform", ("jax", "mlx")), ("utd_mode", ("hold", "free")),
                               ("replay_on_device", ("auto", "on", "off")), ("eval_process", ("auto", "on", "off")),
-                              ("precompile", ("auto", "on", "off"))):
+                              ("precompile", ("auto", "on", "off")), ("device_split", ("batch", "critics"))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"RunConfig: {name} must be one of {choices}, got {getattr(self, name)!r}")
 
@@ -209,7 +212,7 @@ class Trainer:
             state, meta = ckpt.restore(state, lambda a, like: self.xp.from_numpy(a))
             ckpt.close()
             if self.parallel is not None:
-                state = self.parallel.replicate(state)
+                state = self.parallel.place(state)
             self._resumed_meta = meta
             counters = {k: int(v) for k, v in meta["counters"].items()}
             if meta.get("task") != self.run.task or meta.get("algo") != self.run.algo:
