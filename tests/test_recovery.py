@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 import pytest
+from compile_options import fast_compile_env
 
 from unilab_jax import algos
 from unilab_jax.checkpoint import Checkpointer
@@ -103,7 +104,7 @@ def test_sigkill_of_the_learner_then_resume_continues(tmp_path):
     logdir = str(tmp_path / "run")
     ckpt_dir = os.path.join(logdir, "checkpoints")
     proc = subprocess.Popen(_script(logdir, "--total_steps=5000000"), cwd=ROOT, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, env=fast_compile_env())
     try:
         deadline = time.monotonic() + 120
         while not _checkpoint_steps(ckpt_dir):  # the first checkpoint comes after the first update's compile
@@ -120,7 +121,7 @@ def test_sigkill_of_the_learner_then_resume_continues(tmp_path):
         assert saved["store_size"] >= 5_000 and meta["counters"]["updates"] >= 1  # learning had started
         n_rows = sum(1 for _ in open(os.path.join(logdir, "metrics.jsonl")))
         out = subprocess.run(_script(logdir, "--resume", f"--total_steps={step + 30_000}"), cwd=ROOT,
-                             capture_output=True, text=True, timeout=300)
+                             capture_output=True, text=True, timeout=300, env=fast_compile_env())
         assert out.returncode == 0, out.stderr[-3000:]
         summary = json.load(open(os.path.join(logdir, "summary.json")))
         assert summary["env_steps"] >= step + 30_000 and not summary["interrupted"]

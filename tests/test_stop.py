@@ -22,6 +22,7 @@ import time
 import jax
 import numpy as np
 import pytest
+from compile_options import fast_compile_env
 
 from unilab_jax import algos
 from unilab_jax.checkpoint import Checkpointer
@@ -121,6 +122,7 @@ def _read_lines(proc: subprocess.Popen, lines: list[str], first_update: threadin
 
 # after_s: seconds from the start; None: at the first update (~4.5 s after the start on an idle 2-core VM; the
 # fixed 8 s it replaced fell into steady training there and into the compile under load).
+# The runs take XLA's fast-compile flags (tests/compile_options.py): they are stopped by their first updates.
 @pytest.mark.parametrize("sig,after_s", [
     (signal.SIGTERM, 3.0),   # imports / worker start-up
     (signal.SIGTERM, None),  # the first updates
@@ -129,7 +131,8 @@ def _read_lines(proc: subprocess.Popen, lines: list[str], first_update: threadin
 def test_the_cli_stops_within_seconds_in_any_phase(tmp_path, sig, after_s):
     cmd = [sys.executable, os.path.join(ROOT, "experiments", "ppo_cartpole.py"), f"--logdir={tmp_path}",
            "--total_steps=100000000", "--num_workers=2", "--envs_per_worker=16"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=fast_compile_env())
     lines: list[str] = []
     first_update = threading.Event()
     reader = threading.Thread(target=_read_lines, args=(proc, lines, first_update), daemon=True)

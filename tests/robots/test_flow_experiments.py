@@ -9,20 +9,22 @@ import subprocess
 import sys
 
 import pytest
+from compile_options import fast_compile_env
 from script_helpers import run_in_process
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
-def _run(script: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+def _run(script: str, *args: str, timeout: float = 300, env: dict | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, os.path.join(ROOT, "experiments", script), *args], cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout)
+                          capture_output=True, text=True, timeout=timeout, env=env)
 
 
 def test_sacflow_franka_pick_runs(tmp_path):
     # 800 env steps: learning starts at 300, then utd 4 gives ~2000 flow-actor gradient steps (2000 env steps gave
     # ~6800, most of this test's time), several pick-place episodes end and the final evaluation runs.
-    out = _run("sacflow_franka_pick.py", "--speed=20", "--total_steps=800", f"--logdir={tmp_path}")
+    out = _run("sacflow_franka_pick.py", "--speed=20", "--total_steps=800", f"--logdir={tmp_path}",
+               env=fast_compile_env())
     assert out.returncode == 0, out.stderr[-3000:]
     summary = json.loads(out.stdout[out.stdout.index("{"):out.stdout.rindex("}") + 1])
     assert summary["env_steps"] >= 800 and summary["updates"] > 0 and "eval/return" in summary

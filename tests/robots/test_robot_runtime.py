@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from compile_options import fast_compile_env
 from script_helpers import run_in_process
 
 import tasks
@@ -29,7 +30,8 @@ PROPRIO, KINDS = 13, 2
 
 
 def _experiment(*args: str, timeout: float) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, SCRIPT, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    return subprocess.run([sys.executable, SCRIPT, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                          env=fast_compile_env())
 
 
 def test_sac_franka_pick_trains_on_two_sim_robots(tmp_path):
@@ -181,7 +183,8 @@ def test_run_goes_on_when_a_robot_server_dies(tmp_path, serve):
     logdir = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, SCRIPT, f"--robots={servers[0].address},{servers[1].address}",
                              "--total_steps=1500", "--eval_envs=1", "--task_config=timeout_s=0.5",
-                             f"--logdir={logdir}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             f"--logdir={logdir}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=fast_compile_env())
     try:
         metrics = logdir / "metrics.jsonl"
         _wait(lambda: metrics.exists() and any(json.loads(line)["step"] >= 500 for line in open(metrics)), 120,
