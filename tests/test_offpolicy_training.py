@@ -74,8 +74,9 @@ def _check_replay_loop(config, summary, rows, total_steps):
 # final one >= 80 (lowest seen 115; 102 and 105 in the later sweep below, whose best were 126-199).
 # SAC at 300k instead of 450k was tried (evaluations every 50k, seeds 0-4, file by file: every evaluation from 250k
 # on >= 177) and reverted: in a whole-suite fresh-clone run (both pytest workers busy) seed 0 evaluated 104.7 at
-# 300k. The budget stays 450k, where every suite run so far passed. TD3 in the same sweep (seeds 0-4, 600k) is no faster: seeds 1, 3 and 4 were still
-# under 112 at 250k, seed 0 fell from 164 (300k) to 99-114 (500k on): its budget stays.
+# 300k. The budget stays 450k, where every suite run so far passed. TD3 in the same sweep (seeds 0-4, 600k) is no
+# faster: seeds 1, 3 and 4 were still under 112 at 250k, seed 0 fell from 164 (300k) to 99-114 (500k on): its
+# budget stays.
 # Test runtime: ~15 s (SAC) and ~25 s (TD3) on an idle VM, 25-40 s with other jobs on the 2 cores.
 @pytest.mark.parametrize("algo,script,steps", [("sac", "sac_cartpole.py", 450_000),
                                                ("td3", "td3_cartpole.py", 600_000)])
