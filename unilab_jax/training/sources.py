@@ -172,14 +172,18 @@ class ReplaySource:
         u, (b, b_prior) = self._cfg.updates_per_call, self._rows
         prior = None
         if b_prior:
-            prior = {k: self._xp.from_numpy(np.zeros((u, b_prior, *v.shape[1:]), v.dtype))
-                     for k, v in self._prior.items()}
+            prior = self._placed({k: np.zeros((u * b_prior, *v.shape[1:]), v.dtype) for k, v in self._prior.items()},
+                                 u, b_prior)
         if self._mirror is not None:
             return with_prior(self._mirror.take(self._mirror.example_draw((u, b))), prior)
         layout = self._pool.fields
-        online = {k: self._xp.from_numpy(np.zeros((u, b, *layout[k][0]), layout[k][1]))
-                  for k in replay_fields(self._pool.spec)}
-        return with_prior(online, prior)
+        online = {k: np.zeros((u * b, *layout[k][0]), layout[k][1]) for k in replay_fields(self._pool.spec)}
+        return with_prior(self._placed(online, u, b), prior)
+
+    def _placed(self, rows: dict[str, np.ndarray], u: int, n: int) -> dict:
+        """Host rows ``[u * n, ...]`` as the learner's ``[u, n, ...]`` arrays (``produce``'s and ``example_batch``'s
+        one conversion, so the batches compiled for ahead are the batches trained on)."""
+        return {k: self._xp.from_numpy(v.reshape(u, n, *v.shape[1:])) for k, v in rows.items()}
 
     def _env_steps(self) -> int:
         return self._steps0 + self._pool.env_steps()
@@ -251,13 +255,11 @@ class ReplaySource:
                     pool.pump(1)  # serial mode: the env step pool.sample takes on the ring-only path
                     self._spiller.spill()
                     batch = self._tiers.sample(u, b, rng)
-                out = {k: self._xp.from_numpy(batch[k].reshape(u, b, *batch[k].shape[1:]))
-                       for k in replay_fields(self._pool.spec)}
+                out = self._placed({k: batch[k] for k in replay_fields(self._pool.spec)}, u, b)
             prior = None
             if b_prior:  # the prior data holds fields.prior_fields only: the task's others (``source``) are left out
                 idx = rng.integers(0, len(self._prior["reward"]), size=u * b_prior)
-                prior = {k: self._xp.from_numpy(v[idx].reshape(u, b_prior, *v.shape[1:]))
-                         for k, v in self._prior.items()}
+                prior = self._placed({k: v[idx] for k, v in self._prior.items()}, u, b_prior)
                 scalars["perf/prior_rows"] = float(b_prior)
             out = (DeferredBatch(self._mirror, upload, draw, prior) if self._mirror is not None
                    else with_prior(out, prior))
