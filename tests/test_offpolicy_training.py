@@ -15,14 +15,18 @@ import math
 import os
 import subprocess
 import sys
+import types
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from unilab_jax import algos
 from unilab_jax.config import apply_overrides
+from unilab_jax.core import rlpd_kernels
 from unilab_jax.runtime.weights import WeightPublisher
+from unilab_jax.training import sources
 from unilab_jax.training.trainer import RunConfig, Trainer
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -186,6 +190,22 @@ def test_serial_replay_loop_on_device_holds_the_ratio(tmp_path, caplog):
     _check_replay_loop(config, summary, rows, 2_000)
     assert summary["updates"] * 2 >= 0.05 * (summary["env_steps"] - 256) * 0.8
     assert all(r["perf/replay_upload_rows"] > 0 for r in rows if "loss/critic_loss" in r)
+
+
+def test_batch_layout_describes_the_minibatches_with_prior_rows():
+    """``sources.batch_layout`` (what the update compiles for at start-up, before any ring exists) against RLPD's
+    composed minibatch: the prior's fields only, online and prior rows side by side, dtypes promoted."""
+    cfg = types.SimpleNamespace(updates_per_call=2, batch_size=10, prior_fraction=0.3)
+    fields = {"obs": ((5,), np.float32), "terminated": ((), np.bool_), "image": ((3, 4), np.uint8)}
+    prior = {"obs": np.zeros((40, 5), np.float64), "terminated": np.zeros(40, np.float32)}
+    b, b_prior = rlpd_kernels.symmetric_split(10, 0.3)
+    online = {k: jnp.zeros((2, b, *shape), dtype) for k, (shape, dtype) in fields.items()}
+    rows = {k: jnp.asarray(v[:2 * b_prior].reshape(2, b_prior, *v.shape[1:])) for k, v in prior.items()}
+    batch = sources.with_prior(online, rows)
+    layout = sources.batch_layout(fields, cfg, prior)
+    assert {k: (v.shape, v.dtype) for k, v in batch.items()} == {
+        k: (shape, jax.dtypes.canonicalize_dtype(dtype)) for k, (shape, dtype) in layout.items()}
+    assert sources.batch_layout(fields, cfg)["image"] == ((2, 10, 3, 4), np.uint8)
 
 
 def test_replay_on_device_refuses_what_it_cannot_do(tmp_path):

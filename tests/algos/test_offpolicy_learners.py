@@ -187,13 +187,13 @@ def test_learns_a_contextual_bandit(name):
 
 
 def test_precompile_leaves_the_first_update_nothing_to_compile(caplog):
-    """``precompile`` (the trainer's compile while the rings fill) builds the very program the first update runs."""
+    """``precompile`` (the trainer's compile at the start of a run) builds the very program the first update runs."""
     mod = algos.get("fastsac")
     cfg = dataclasses.replace(mod.Config(), **{**COMMON, **SETUPS["fastsac"][0]})
     learner = offpolicy_jax.SACFamilyLearner(mod, cfg, SPEC, compiler_options=FAST_COMPILE)
     state = learner.init(jax.random.PRNGKey(7))
     batch = _batch(np.random.default_rng(7), cfg.updates_per_call, terminated=0.0)
-    learner.precompile(state, {k: np.zeros_like(v) for k, v in batch.items()})
+    learner.precompile(state, {k: (v.shape, v.dtype) for k, v in batch.items()})
     assert learner.trace_count == 1 and int(state.steps) == 0  # traced and compiled; the state untouched
     with jax.log_compiles(True), caplog.at_level("WARNING"):
         state, metrics = learner.update(state, batch)

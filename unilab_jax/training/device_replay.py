@@ -135,11 +135,6 @@ class DeviceReplay:
         seed = np.uint32(rng.integers(0, 2**32))
         return self.lo.astype(np.int32) % self._ring.capacity, sizes.astype(np.int32), seed, tuple(shape)
 
-    def example_draw(self, shape: tuple[int, ...]) -> tuple:
-        """A draw of ``take``'s types that needs no data (one row of every worker's slot 0): for compiling ahead."""
-        w = self._ring.num_workers
-        return np.zeros(w, np.int32), np.ones(w, np.int32), np.uint32(0), tuple(shape)
-
     def take(self, draw: tuple) -> dict[str, jax.Array]:
         """The minibatch of ``draw``, drawn and gathered on the device in one jitted call."""
         lo, sizes, seed, shape = draw

@@ -71,6 +71,22 @@ def with_prior(online: dict, prior: dict | None) -> dict:
     return online if prior is None else rlpd.compose({k: online[k] for k in prior}, prior)
 
 
+def batch_layout(fields: dict[str, tuple[tuple[int, ...], Any]], cfg: Any,
+                 prior: dict[str, np.ndarray] | None = None) -> dict[str, tuple]:
+    """``{field: (shape, dtype)}`` of the minibatches a :class:`ReplaySource` hands the learner, from the replay rows'
+    layout ``fields`` (``{field: (row shape, dtype)}``), the algorithm's config ``cfg`` and the prior data, known
+    before any worker or ring exists: what the learner compiles its update for at start-up (``learner.precompile``).
+    ``[U, B, ...]``, B split into online and prior rows as ``produce`` splits it (the prior's fields only, dtypes
+    promoted as the concatenation promotes them). Host-drawn and device-mirror batches alike are arrays left on the
+    default device (uncommitted)."""
+    u = cfg.updates_per_call
+    if prior is None:
+        return {k: ((u, cfg.batch_size, *shape), np.dtype(dtype)) for k, (shape, dtype) in fields.items()}
+    b, b_prior = rlpd.symmetric_split(cfg.batch_size, cfg.prior_fraction)
+    return {k: ((u, b + b_prior, *fields[k][0]), np.result_type(fields[k][1], v.dtype))
+            for k, v in prior.items()}
+
+
 class DeferredBatch:
     """A minibatch of the device mirror, finished by the thread that runs the update (``batch()``): the staged upload
     written into the mirror, then the drawn rows gathered (and the prior rows composed in). The prefetch thread
@@ -165,24 +181,8 @@ class ReplaySource:
         if self._window is not None:
             self._hold(self._need + self._window)
 
-    def example_batch(self) -> dict:
-        """Zeros shaped, typed and placed like every batch ``produce`` hands the learner (through the device mirror's
-        gather when there is one), drawn from nothing: what the learner compiles its update for while the rings
-        fill (``learner.precompile``)."""
-        u, (b, b_prior) = self._cfg.updates_per_call, self._rows
-        prior = None
-        if b_prior:
-            prior = self._placed({k: np.zeros((u * b_prior, *v.shape[1:]), v.dtype) for k, v in self._prior.items()},
-                                 u, b_prior)
-        if self._mirror is not None:
-            return with_prior(self._mirror.take(self._mirror.example_draw((u, b))), prior)
-        layout = self._pool.fields
-        online = {k: np.zeros((u * b, *layout[k][0]), layout[k][1]) for k in replay_fields(self._pool.spec)}
-        return with_prior(self._placed(online, u, b), prior)
-
     def _placed(self, rows: dict[str, np.ndarray], u: int, n: int) -> dict:
-        """Host rows ``[u * n, ...]`` as the learner's ``[u, n, ...]`` arrays (``produce``'s and ``example_batch``'s
-        one conversion, so the batches compiled for ahead are the batches trained on)."""
+        """Host rows ``[u * n, ...]`` as the learner's ``[u, n, ...]`` arrays."""
         return {k: self._xp.from_numpy(v.reshape(u, n, *v.shape[1:])) for k, v in rows.items()}
 
     def _env_steps(self) -> int:

@@ -54,7 +54,7 @@ from unilab_jax.runtime.weights import WeightPublisher
 from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
 from unilab_jax.training.evaluation import AsyncEvaluator, ClipRecorder, evaluate_policy
 from unilab_jax.training.profiling import ProfileWindow
-from unilab_jax.training.sources import DeferredBatch, ReplaySource, TrajectorySource
+from unilab_jax.training.sources import DeferredBatch, ReplaySource, TrajectorySource, batch_layout
 from unilab_jax.training.threads import LearnerThread, Prefetcher, UpdatePipeline, stop_on_signals
 from unilab_jax.xp import tree_leaves
 
@@ -92,9 +92,9 @@ class RunConfig:
     # process's interpreter lock. "auto": when the learner runs on an accelerator (JAX not on the CPU, MLX on the
     # GPU) and the run is not serial; "on" / "off" force it.
     eval_process: str = "auto"
-    # Off-policy, JAX learner on one device: compile the update while the workers start and the rings fill
-    # (Trainer._start_precompile). "auto": when the learner runs on an accelerator (on the CPU the compile would take
-    # the workers' cores); "on" / "off" force it.
+    # Off-policy, JAX learner on one device: compile the update from the start, while the workers start and the
+    # rings fill (Trainer._start_precompile). "auto": when the learner runs on an accelerator (on the CPU the compile
+    # would take the workers' cores); "on" / "off" force it.
     precompile: str = "auto"
     # Off-policy: "hold" pauses the workers when the learner falls more than ``utd_window`` env steps behind
     # the recipe's update-to-data ratio (the same learning per env step on any machine); "free" lets them
@@ -316,6 +316,7 @@ class Trainer:
         evaluator = AsyncEvaluator(self, stop, in_process=self._eval_in_process())
         learner = LearnerThread(run.platform)
         state, counters = self._init_state()
+        log.info("learner state ready %.1f s after the start", time.time() - t_start)
         weights = nets.to_numpy(self.learner.weights(state))
         clips = None
         if run.video_every:
@@ -326,6 +327,8 @@ class Trainer:
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
         store = self._open_replay_store() if replay else None
         prior = self._load_prior() if replay else None
+        if replay:  # from here on, while the workers start and the rings fill
+            self._precompiling = self._start_precompile(state, prior)
         pool_kwargs = dict(task_name=run.task, task_overrides=self.task_overrides, num_workers=run.num_workers,
                            envs_per_worker=run.envs_per_worker, seed=run.seed + counters["updates"],
                            algo_module=self.algo.__name__, weight_template=weights,
@@ -359,6 +362,7 @@ class Trainer:
         profile = ProfileWindow(run)
         try:
             pool.start(stop=stop.is_set)
+            log.info("%d workers started %.1f s after the start", run.num_workers, time.time() - t_start)
             # The source before the first weights: replay workers wait for them, so a held run's step
             # limit is in place before any env step.
             source = (ReplaySource(pool, self.batch_xp, cfg, counters, run.seed, store, run.replay_hot_fraction,
@@ -366,8 +370,6 @@ class Trainer:
                                     total_steps=run.total_steps, hold_window=hold_window, prior=prior)
                       if replay else TrajectorySource(pool, self.batch_xp, self.spec.reward_terms))
             pool.publish(weights, counters["version"])
-            if replay:
-                self._precompiling = self._start_precompile(state, source)
             prefetch = Prefetcher(source.produce, inline=run.serial)
             # Off-policy runs queue the next call before this one's results are read, so the device never waits
             # for the loop's host work (threads.UpdatePipeline); replay batches need no new weights. Trajectory
@@ -509,24 +511,26 @@ class Trainer:
         log.warning("final checkpoint skipped: the update left running took the state's buffers; the last "
                     "checkpoint (env step %s) stands", ckpt.latest_step())
 
-    def _start_precompile(self, state: Any, source: ReplaySource) -> threading.Thread | None:
-        """An off-policy JAX learner on one device compiles its update in a thread while the workers start and the
-        rings fill (``learner.precompile`` on ``source.example_batch()``; ``RunConfig.precompile``): the first update
-        waits for it instead of compiling then (14-18 s on the H100 machine, while the workers ran on without a
-        learner)."""
+    def _start_precompile(self, state: Any, prior: dict[str, np.ndarray] | None) -> threading.Thread | None:
+        """An off-policy JAX learner on one device compiles its update in a thread from the start of the run, while
+        the worker pool is built, the workers start and the rings fill (``learner.precompile`` for the minibatches
+        ``sources.batch_layout`` describes; ``RunConfig.precompile``): the first update waits for it instead of
+        compiling then (14-18 s on the H100 machine, while the workers ran on without a learner)."""
         if self.run.platform != "jax" or self.parallel is not None or algos.info(self.algo).family != "off_policy":
             return None
         if self.run.precompile == "off" or (self.run.precompile == "auto" and sizing.learner_on_cpu("jax")):
             return None
+        layout = batch_layout(self._row_layout(replay_fields(self.spec)), self.config, prior)
 
         def work() -> None:
             t0 = time.perf_counter()
             try:
-                self.learner.precompile(state, source.example_batch())
+                self.learner.precompile(state, layout)
             except Exception:  # the first update compiles it instead
                 log.exception("compiling the update ahead of the first call failed")
                 return
-            log.info("update compiled ahead of the first call in %.1f s", time.perf_counter() - t0)
+            log.info("update compiled ahead of the first call in %.1f s, %.1f s after the start",
+                     time.perf_counter() - t0, time.time() - self.t0)
 
         thread = threading.Thread(target=work, name="precompile", daemon=True)
         thread.start()

@@ -88,11 +88,14 @@ class _Jitted:
     def init(self, key: jax.Array) -> Any:
         return self._init_state(self.init_params(_key_words(key)), jax.random.split(key)[1])
 
-    def precompile(self, state: Any, batch: dict) -> None:
-        """Compiles ``update`` for arguments shaped, typed and placed like ``state`` and ``batch`` (neither is read
-        nor donated), so that the first call with such arguments runs at once: the trainer does this while the
-        replay rings fill (XLA's compile of a large update takes 14-18 s on the H100 machine)."""
-        self._update_jit.lower(_abstract(state), _abstract(batch)).compile()
+    def precompile(self, state: Any, batch_layout: dict[str, tuple]) -> None:
+        """Compiles ``update`` for a state shaped, typed and placed like ``state`` (not read nor donated) and
+        minibatches of ``batch_layout`` (``{field: (shape, dtype)}``, arrays left on the default device), so that the
+        first call with such arguments runs at once: the trainer does this from the start of a run, while the workers
+        start and the rings fill (XLA's compile of a large update takes 14-18 s on the H100 machine)."""
+        batch = {k: jax.ShapeDtypeStruct(shape, jax.dtypes.canonicalize_dtype(dtype))
+                 for k, (shape, dtype) in batch_layout.items()}
+        self._update_jit.lower(_abstract(state), batch).compile()
 
 
 def _abstract(tree: Any) -> Any:
