@@ -49,6 +49,7 @@ def main() -> None:
     ap.add_argument("--start", type=float, default=40.0)
     ap.add_argument("--end", type=float, default=115.0)
     ap.add_argument("--machine", default="H100 80GB HBM3 + 16 cores (nvidia-h100-x1)")
+    ap.add_argument("--host_cpu", default=None, help="the runs' CPU model (default: this machine's)")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     records = []
@@ -70,7 +71,7 @@ def main() -> None:
                 "env_steps_per_s_median": rec.get("env_steps_per_s_median"),
                 "window": rates(rows, args.start, args.end, steps_per_call),
                 "from_start": rates(rows, args.start, float("inf"), steps_per_call)})
-    out = {"machine": args.machine, "host_cpu": cpu_model(), "window_s": [args.start, args.end],
+    out = {"machine": args.machine, "host_cpu": args.host_cpu or cpu_model(), "window_s": [args.start, args.end],
            "records": records}
     with open(args.out, "w") as f:
         json.dump(out, f, indent=1)

@@ -34,3 +34,22 @@ def test_rates_over_the_window_and_from_the_start(tmp_path):
     assert "| abc | base | 3 | 99.0 |" in res.stdout
     bad = subprocess.run([sys.executable, SCRIPT, "--out", str(out), "abc,base"], capture_output=True, text=True)
     assert bad.returncode == 2 and "commit,variant,U,TTT_JSON,METRICS_DIR" in bad.stderr
+
+
+def test_hardware_plot_counts_a_run_that_did_not_walk_at_its_budget(tmp_path):
+    sys.path.insert(0, os.path.join(ROOT, "bench"))
+    import plot_hardware
+
+    ttt = tmp_path / "ttt.json"
+    ttt.write_text(json.dumps({"records": [
+        {"walking_reached": True, "time_to_walking_s": 90.0, "max_seconds": 140.0},
+        {"walking_reached": False, "time_to_walking_s": None, "max_seconds": 140.0}]}))
+    assert plot_hardware.walking_times(str(ttt)) == [(90.0, True), (140.0, False)]
+    script = os.path.join(ROOT, "bench", "plot_hardware.py")
+    res = subprocess.run([sys.executable, script, "--out", str(tmp_path / "p.png"), str(ttt)],
+                         capture_output=True, text=True)
+    assert res.returncode == 2 and "LABEL=RECORDS_JSON" in res.stderr
+    res = subprocess.run([sys.executable, script, "--out", str(tmp_path / "p.png"), f"1 GPU={ttt}"],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "p.png").stat().st_size > 1000
