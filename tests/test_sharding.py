@@ -154,18 +154,32 @@ def _mirror() -> dict:
 
 def _train(tmp: str) -> dict:
     """Short serial runs of the Trainer with --devices=2: FastSAC through the sharded replay mirror, PPO."""
+    import logging
+
+    import jax
+
     from unilab_jax import algos
     from unilab_jax.config import apply_overrides
     from unilab_jax.training import sharding
     from unilab_jax.training.trainer import RunConfig, Trainer
 
+    compiled_by = []  # the threads that compiled an update (XLA's compile log)
+
+    class _Compiles(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if "XLA compilation of jit(traced_update)" in record.getMessage():
+                compiled_by.append(record.threadName)
+
+    logging.getLogger().addHandler(_Compiles(logging.WARNING))
+    jax.config.update("jax_log_compiles", True)
     out = {}
     for algo, recipe, extra in [
         ("fastsac", {"actor_hidden": (32, 32), "critic_hidden": (32, 32), "batch_size": 64, "updates_per_call": 2,
-                     "learning_starts": 256, "utd": 0.5, "num_atoms": 11}, {"replay_on_device": "on"}),
+                     "learning_starts": 256, "utd": 0.5, "num_atoms": 11}, {"replay_on_device": "on",
+                                                                            "precompile": "on"}),
         ("fastsac_critics", {"actor_hidden": (32, 32), "critic_hidden": (32, 32), "batch_size": 64,
                              "updates_per_call": 2, "learning_starts": 256, "utd": 0.5, "num_atoms": 11},
-         {"replay_on_device": "on", "device_split": "critics"}),
+         {"replay_on_device": "on", "device_split": "critics", "precompile": "on"}),
         ("ppo", {"actor_hidden": (32, 32), "critic_hidden": (32, 32), "horizon": 8, "num_minibatches": 2}, {}),
     ]:
         module = algos.get(algo.split("_")[0])
@@ -174,8 +188,9 @@ def _train(tmp: str) -> dict:
                         devices="2", **extra)
         trainer = Trainer(run, module, apply_overrides(module.Config(), recipe), {})
         assert isinstance(trainer.learner, sharding.DataParallel)
+        compiled_by.clear()
         summary = trainer.train()
-        out[algo] = {"updates": summary["updates"], "return": summary["eval/return"]}
+        out[algo] = {"updates": summary["updates"], "return": summary["eval/return"], "compiled_by": list(compiled_by)}
     # Resume of the sharded PPO run: the checkpoint's state is replicated again and training goes on.
     resumed = Trainer(dataclasses.replace(run, total_steps=2_048, resume=True), module,
                       apply_overrides(module.Config(), recipe), {}).train()
@@ -222,6 +237,9 @@ def test_sharded_updates_equal_single_device(tmp_path):
     # The Trainer with --devices=2 (serial workers, tiny budgets): it updates and evaluates.
     assert result["train"]["fastsac"]["updates"] > 0 and result["train"]["ppo"]["updates"] == 1_024 // 128
     assert result["train"]["fastsac_critics"]["updates"] > 0  # --device_split=critics through the replicated mirror
+    # --precompile=on: each split program compiled once, ahead, in the precompile thread (the first update waits for it)
+    assert result["train"]["fastsac"]["compiled_by"] == ["precompile"], result["train"]
+    assert result["train"]["fastsac_critics"]["compiled_by"] == ["precompile"], result["train"]
     assert all(r["return"] > 0 for k, r in result["train"].items() if k != "ppo_resumed_updates"), result["train"]
     assert result["train"]["ppo_resumed_updates"] == 2_048 // 128
 

@@ -86,7 +86,7 @@ flags.DEFINE_enum("replay_on_device", "auto", ["auto", "on", "off"], "off-policy
                   "CPU or --replay_dir is set)")
 flags.DEFINE_enum("eval_process", "auto", ["auto", "on", "off"], "run the evaluations' episodes in a process of "
                   "their own, off the learner process (auto: when the learner runs on an accelerator and not --serial)")
-flags.DEFINE_enum("precompile", "auto", ["auto", "on", "off"], "off-policy, jax learner on one device: compile the "
+flags.DEFINE_enum("precompile", "auto", ["auto", "on", "off"], "off-policy, jax learner: compile the "
                   "update while the workers fill the replay rings, not at the first update (auto: when the learner "
                   "runs on an accelerator)")
 flags.DEFINE_enum("utd_mode", "hold", ["hold", "free"], "off-policy: hold pauses the workers when the learner falls "

@@ -119,6 +119,14 @@ class DataParallel:
     def weights(self, state: Any) -> Any:
         return self.learner.weights(state)
 
+    def precompile(self, state: Any, batch_layout: dict[str, tuple]) -> None:
+        """As the wrapped learner's ``precompile``, for this program: ``state`` placed (``place``, neither read nor
+        donated), minibatches of ``batch_layout`` (``{field: (shape, dtype)}``) placed as ``from_numpy`` and the
+        device mirror place them."""
+        batch = {k: jax.ShapeDtypeStruct(shape, jax.dtypes.canonicalize_dtype(dtype), sharding=self.batch_sharding)
+                 for k, (shape, dtype) in batch_layout.items()}
+        self._update.lower(state, batch).compile()
+
     def __getattr__(self, name: str) -> Any:  # trace_count, optimizers, ... of the wrapped learner
         return getattr(self.learner, name)
 

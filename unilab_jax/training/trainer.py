@@ -92,7 +92,7 @@ class RunConfig:
     # process's interpreter lock. "auto": when the learner runs on an accelerator (JAX not on the CPU, MLX on the
     # GPU) and the run is not serial; "on" / "off" force it.
     eval_process: str = "auto"
-    # Off-policy, JAX learner on one device: compile the update from the start, while the workers start and the
+    # Off-policy, JAX learner: compile the update from the start, while the workers start and the
     # rings fill (Trainer._start_precompile). "auto": when the learner runs on an accelerator (on the CPU the compile
     # would take the workers' cores); "on" / "off" force it.
     precompile: str = "auto"
@@ -512,11 +512,11 @@ class Trainer:
                     "checkpoint (env step %s) stands", ckpt.latest_step())
 
     def _start_precompile(self, state: Any, prior: dict[str, np.ndarray] | None) -> threading.Thread | None:
-        """An off-policy JAX learner on one device compiles its update in a thread from the start of the run, while
-        the worker pool is built, the workers start and the rings fill (``learner.precompile`` for the minibatches
-        ``sources.batch_layout`` describes; ``RunConfig.precompile``): the first update waits for it instead of
-        compiling then (14-18 s on the H100 machine, while the workers ran on without a learner)."""
-        if self.run.platform != "jax" or self.parallel is not None or algos.info(self.algo).family != "off_policy":
+        """An off-policy JAX learner (on one device, or the ``DataParallel`` one of several) compiles its update in a
+        thread from the start of the run, while the worker pool is built, the workers start and the rings fill
+        (``learner.precompile`` for the minibatches ``sources.batch_layout`` describes; ``RunConfig.precompile``): the
+        first update waits for it instead of compiling then (14-18 s on the H100 machine, while the workers ran on)."""
+        if self.run.platform != "jax" or algos.info(self.algo).family != "off_policy":
             return None
         if self.run.precompile == "off" or (self.run.precompile == "auto" and sizing.learner_on_cpu("jax")):
             return None
