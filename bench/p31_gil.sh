@@ -11,6 +11,8 @@
 #   nocb      no XLA command buffers (--xla_gpu_enable_command_buffer=): the scan's steps as plain kernel launches
 #   wNpK      N workers kept off the first K cores (--pin_cpus=K)
 #   noprec    the update compiled at its first call, not while the rings fill (--precompile=off)
+#   c:K=V     the recipe's config field K set to V (--config=K=V), e.g. c:batch_size=4096
+#   f:F=V     the experiment flag --F=V, e.g. f:envs_per_worker=128 (after the configuration's own: it wins)
 # Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR), so runs compare like for
 # like whatever ran before on the machine. SEEDS (default: SEED) runs every variant for each seed, variants inner.
 #   VARIANTS="base w15" SEEDS="0 1 2" MAXS=160 bash bench/p31_gil.sh
@@ -21,20 +23,22 @@ head -3 "$OUT/setup.txt"
 mkdir -p /tmp/swi && echo 'import sys; sys.setswitchinterval(0.0005)' > /tmp/swi/sitecustomize.py
 for seed in ${SEEDS:-${SEED:-0}}; do
 for v in ${VARIANTS:-base noeval swi}; do
-  run=${v}_s$seed; cache=$(mktemp -d)
+  run=$(echo "${v}" | tr ':=' '__')_s$seed; cache=$(mktemp -d)
   extra=(); pp=$PYTHONPATH
   [ "$v" = noeval ] && extra=(--extra=--eval_every=1000000000)
   [ "$v" = swi ] && pp=/tmp/swi:$PYTHONPATH
   xf=${XLA_FLAGS:-}; [ "$v" = nocb ] && xf="$xf --xla_gpu_enable_command_buffer="
   [ "$v" = u16 ] && extra=(--extra=--config=updates_per_call=16)
   [ "$v" = noprec ] && extra=(--extra=--precompile=off)
+  [[ "$v" == c:* ]] && extra=(--extra=--config=${v#c:})
+  [[ "$v" == f:* ]] && extra=(--extra=--${v#f:})
   [ "$v" = w15 ] && extra=(--extra=--num_workers=15 --extra=--pin_cpus=-1)
   [[ "$v" =~ ^w([0-9]+)p([0-9]+)$ ]] && extra=(--extra=--num_workers=${BASH_REMATCH[1]} --extra=--pin_cpus=${BASH_REMATCH[2]})
   JAX_COMPILATION_CACHE_DIR=$cache XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async \
     --seed "$seed" --max_seconds "${MAXS:-110}" --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics_$run" \
     --out "$OUT/ttt_$run.json" "${extra[@]}" 2>&1 | grep -v -i warning | tail -2 | sed "s/^/$run: /"
   rm -rf "$cache"
-  u=8; [ "$v" = u16 ] && u=16
+  u=8; [ "$v" = u16 ] && u=16; [[ "$v" == c:updates_per_call=* ]] && u=${v#c:updates_per_call=}
   python3 bench/learner_runs.py --start 40 --end "${MAXS:-110}" --out "$OUT/rates_$run.json" \
     "${COMMIT:-unknown},$v,$u,$OUT/ttt_$run.json,$OUT/metrics_$run" | grep "^| ${COMMIT:-unknown}"
 done
