@@ -22,7 +22,8 @@ PACKAGES = ("unilab_jax", "unilab_mlx", "tasks", "experiments")
 # so an import that runs back up inside a group (a robot module importing the runtime) fails like any other.
 LAYERS = [
     # L0: the array-API shim and its MLX backend
-    ("unilab_jax.xp", 0), ("unilab_jax.mixed_precision", 0), ("unilab_mlx.backend", 0),
+    ("unilab_jax.xp", 0), ("unilab_jax.mixed_precision", 0), ("unilab_jax.pallas_kernels", 0),
+    ("unilab_mlx.backend", 0),
     # L1: kernels and utilities (no tasks, no runtime, no algorithm)
     ("unilab_jax", 1), ("unilab_jax.core", 1), ("unilab_jax.core.*", 1), ("unilab_jax.nets", 1),
     ("unilab_jax.nets_temporal", 1), ("unilab_jax.config", 1), ("unilab_jax.metrics", 1),

@@ -8,6 +8,10 @@
   out in bf16 for the next matmul. Mean, variance and the affine map are float32; the backward pass is
   written by hand so that it keeps only ``h`` (bf16) and two float32 numbers per row (mean, 1/std) and
   recomputes the normalised values, instead of the float32 intermediates that autodiff would store.
+  ``with ln_backward("pallas"):`` (this thread, at trace time; the off-policy learners' ``ln_backward`` field)
+  makes the backward pass ONE fused Pallas kernel per layer (``unilab_jax.pallas_kernels``) instead of the
+  XLA program of ``_ln_bwd``; shapes the kernel does not take (``h`` of rank other than 2 or 3, parameters
+  that vary along the rows, a width that is not a power of two on the GPU) keep the XLA backward.
 
 Between two LayerNorm layers of a network, the activations then travel in bf16 forward and backward,
 which halves the memory traffic of the elementwise work around each matmul: the work that bounds the
@@ -19,7 +23,10 @@ which gives the same products (a product of two bf16 numbers is exact in float32
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import threading
+from collections.abc import Iterator
 from typing import Any
 
 import jax
@@ -27,6 +34,22 @@ import jax.numpy as jnp
 
 F32, BF16 = jnp.float32, jnp.bfloat16
 EPS = 1e-5  # LayerNorm's variance epsilon (nets._layer_norm's)
+LN_BACKWARDS = ("xla", "pallas")
+_LOCAL = threading.local()  # .ln_backward: the backward that layer_norm_relu traces now
+
+
+@contextlib.contextmanager
+def ln_backward(name: str) -> Iterator[None]:
+    """Within the block (this thread, at trace time), ``layer_norm_relu``'s backward pass is ``name``'s:
+    "xla" (``_ln_bwd``, the default) or "pallas" (the fused kernel, where the shapes allow it)."""
+    if name not in LN_BACKWARDS:
+        raise ValueError(f"ln_backward must be one of {LN_BACKWARDS}, got {name!r}")
+    previous = getattr(_LOCAL, "ln_backward", "xla")
+    _LOCAL.ln_backward = name
+    try:
+        yield
+    finally:
+        _LOCAL.ln_backward = previous
 
 
 def unbroadcast(x: Any, shape: tuple) -> Any:
@@ -71,15 +94,20 @@ def _stats(x: Any) -> tuple[Any, Any]:
     return mu, jax.lax.rsqrt(var + EPS)
 
 
-def _ln_fwd(h: Any, b: Any, g: Any, o: Any) -> tuple[Any, tuple]:
+def _ln_fwd(h: Any, b: Any, g: Any, o: Any, backward: str = "xla") -> tuple[Any, tuple]:
     x = h.astype(F32) + b
     mu, rstd = _stats(x)
     return jax.nn.relu((x - mu) * rstd * g + o).astype(BF16), (h, b, g, o, mu, rstd)
 
 
-@jax.custom_vjp
-def layer_norm_relu(h: Any, b: Any, g: Any, o: Any) -> Any:
+@functools.partial(jax.custom_vjp, nondiff_argnums=(4,))
+def _layer_norm_relu(h: Any, b: Any, g: Any, o: Any, backward: str) -> Any:
     return _ln_fwd(h, b, g, o)[0]
+
+
+def layer_norm_relu(h: Any, b: Any, g: Any, o: Any) -> Any:
+    """``relu(LayerNorm(h + b) * g + o)`` in bf16, its backward the one ``ln_backward`` chose."""
+    return _layer_norm_relu(h, b, g, o, getattr(_LOCAL, "ln_backward", "xla"))
 
 
 def _ln_bwd(res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
@@ -94,4 +122,29 @@ def _ln_bwd(res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
             unbroadcast(dz, o.shape))
 
 
-layer_norm_relu.defvjp(_ln_fwd, _ln_bwd)
+def _ln_bwd_pallas(res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
+    """``_ln_bwd`` as one Pallas kernel for ``[E, B, W]`` or ``[B, W]`` ``h`` whose parameters broadcast as
+    ``[E or 1, 1, W]`` (``[W]``, ``[1, W]`` ...); other shapes take ``_ln_bwd``."""
+    from unilab_jax import pallas_kernels
+
+    h, b, g, o, mu, rstd = res
+    width = h.shape[-1]
+    padded = [(1,) * (3 - p.ndim) + p.shape for p in (b, g, o)]
+    if (h.ndim not in (2, 3) or dy.shape != h.shape or not pallas_kernels.supported(width)
+            or any(p.ndim > h.ndim or s[1:] != (1, width) or s[0] not in (1, h.shape[0] if h.ndim == 3 else 1)
+                   for p, s in zip((b, g, o), padded, strict=True))):
+        return _ln_bwd(res, dy)
+    h3, dy3, mu3, rstd3 = (a if h.ndim == 3 else a[None] for a in (h, dy, mu, rstd))
+    e = h3.shape[0]
+    params = [jnp.broadcast_to(p.reshape(s).astype(F32), (e, 1, width)) for p, s in zip((b, g, o), padded, strict=True)]
+    dh, *partials = pallas_kernels.ln_relu_backward(h3, dy3, mu3, rstd3, *params)
+    sums = [unbroadcast(jnp.sum(s, axis=1, keepdims=True).reshape((e, 1, width)[3 - h.ndim:]), p.shape)
+            for s, p in zip(partials, (b, g, o), strict=True)]
+    return (dh.reshape(h.shape), *sums)
+
+
+def _ln_bwd_chosen(backward: str, res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
+    return (_ln_bwd_pallas if backward == "pallas" else _ln_bwd)(res, dy)
+
+
+_layer_norm_relu.defvjp(_ln_fwd, _ln_bwd_chosen)

@@ -39,13 +39,13 @@ def _batch(rng: np.random.Generator, u: int) -> dict:
             "terminated": rng.random((u, B)) < 0.05, "truncated": np.zeros((u, B), bool)}
 
 
-def _config(name: str, dtype: str):
+def _config(name: str, dtype: str, ln_backward: str = "xla"):
     return dataclasses.replace(algos.get(name).Config(), batch_size=B, updates_per_call=2, compute_dtype=dtype,
-                               actor_hidden=(128, 64), critic_hidden=(256, 128))
+                               actor_hidden=(128, 64), critic_hidden=(256, 128), ln_backward=ln_backward)
 
 
-def _learner(name: str, dtype: str):
-    cfg = _config(name, dtype)
+def _learner(name: str, dtype: str, ln_backward: str = "xla"):
+    cfg = _config(name, dtype, ln_backward)
     if name == "td3":
         return offpolicy_jax.TD3Learner(cfg, SPEC, compiler_options=FAST_COMPILE)
     return offpolicy_jax.SACFamilyLearner(algos.get(name), cfg, SPEC, compiler_options=FAST_COMPILE)
@@ -114,6 +114,78 @@ def test_layer_norm_relu_kernel_matches_float64_reference():
     for got, want, tol in zip(grads, ref, (8e-3, 1e-4, 1e-4, 1e-4), strict=True):
         err = np.linalg.norm(np.asarray(got, np.float64) - np.asarray(want)) / np.linalg.norm(np.asarray(want))
         assert err < tol, (err, tol)
+
+
+def _ln_case(rng, h_shape, p_shape):
+    from unilab_jax import mixed_precision as mp
+
+    h = jnp.asarray(rng.normal(size=h_shape) * 3 + 1, jnp.bfloat16)
+    b, g, o = (jnp.asarray(rng.normal(size=p_shape) * s + m, jnp.float32) for s, m in ((1, 0), (0.3, 1), (0.5, 0)))
+    return mp._ln_fwd(h, b, g, o)[1], jnp.asarray(rng.normal(size=h_shape), jnp.bfloat16)
+
+
+@pytest.mark.parametrize("h_shape, p_shape", [((2, 64, 96), (2, 1, 96)), ((2, 100, 32), (32,)), ((100, 64), (64,)),
+                                              ((3, 40, 16), (3, 40, 16))])
+def test_pallas_ln_backward_matches_xla(h_shape, p_shape):
+    """The fused Pallas backward (interpreted on the CPU) against ``_ln_bwd``: an ensemble [E, B, W] with per-member
+    parameters, B = 100 (not a multiple of the 64-row block: padded rows) with [W] parameters, a 2-D [B, W]; the
+    parameter gradients within 1e-5 relative, dh (bf16) within one bf16 rounding. Parameters that vary along the
+    rows (the last case) are not the kernel's: that one takes the XLA backward (no Pallas call) and is exact."""
+    from unilab_jax import mixed_precision as mp
+
+    res, dy = _ln_case(np.random.default_rng(5), h_shape, p_shape)
+    fused = jax.jit(mp._ln_bwd_pallas)
+    assert ("pallas_call" in str(jax.make_jaxpr(fused)(res, dy))) == (p_shape[-2:-1] != (40,))
+    got, want = fused(res, dy), mp._ln_bwd(res, dy)
+    for a, w, tol in zip(got, want, (None, 1e-5, 1e-5, 1e-5), strict=True):
+        assert a.shape == w.shape and a.dtype == w.dtype
+        a, w = np.asarray(a, np.float64), np.asarray(w, np.float64)
+        if tol is None:  # bf16 has 8 significant bits: one rounding is at most 2^-8 of the value
+            assert np.all(np.abs(a - w) <= 2.0 ** -8 * np.abs(w) + 1e-6)
+        else:
+            assert np.linalg.norm(a - w) <= tol * np.linalg.norm(w)
+    assert float(np.abs(np.asarray(got[1])).max()) > 0.1  # the sums are not all zero
+
+
+def test_ln_backward_switch_picks_the_kernel_at_trace_time():
+    """``mp.ln_backward("pallas")`` makes ``layer_norm_relu``'s vjp trace the Pallas kernel, only inside the block;
+    both give the same gradients; an unknown name is refused, in the context and in the learners' config."""
+    from unilab_jax import mixed_precision as mp
+
+    (h, b, g, o, _, _), dy = _ln_case(np.random.default_rng(6), (2, 64, 32), (2, 1, 32))
+    def grads():  # a fresh function per block: jax caches a function's traces without the thread's setting
+        return jax.jit(lambda h, b, g, o, dy: jax.vjp(mp.layer_norm_relu, h, b, g, o)[1](dy))
+
+    with mp.ln_backward("pallas"):
+        fused = grads()
+        assert "pallas_call" in str(jax.make_jaxpr(fused)(h, b, g, o, dy))
+        got = fused(h, b, g, o, dy)
+    xla = grads()
+    assert "pallas_call" not in str(jax.make_jaxpr(xla)(h, b, g, o, dy))
+    for a, w, rtol in zip(got, xla(h, b, g, o, dy), (2.0 ** -8, 1e-5, 1e-5, 1e-5), strict=True):
+        np.testing.assert_allclose(np.asarray(a, np.float32), np.asarray(w, np.float32), rtol=rtol, atol=1e-5)
+    with pytest.raises(ValueError, match="ln_backward"), mp.ln_backward("triton"):
+        pass
+    with pytest.raises(ValueError, match="ln_backward"):
+        algos.get("fastsac").Config(ln_backward="triton")
+
+
+def test_fastsac_update_with_pallas_ln_backward_matches_xla():
+    """One bf16 FastSAC update (2 gradient steps, LayerNorm critics) with ``ln_backward="pallas"`` traces the
+    kernel and lands where "xla" does: metrics within 1e-4 relative, parameters within 1e-5."""
+    rng = np.random.default_rng(2)
+    batch = _batch(rng, 2)
+    out = {}
+    for ln_backward in ("xla", "pallas"):
+        learner = _learner("fastsac", "bfloat16", ln_backward)
+        state = learner.init(jax.random.PRNGKey(0))
+        assert ("pallas_call" in str(jax.make_jaxpr(learner.traced_update)(state, batch))) == (ln_backward == "pallas")
+        out[ln_backward] = learner.update(state, batch)
+    (s_xla, m_xla), (s_pl, m_pl) = out["xla"], out["pallas"]
+    for k in ("critic_loss", "actor_loss", "critic_grad_norm", "actor_grad_norm", "q_mean"):
+        assert float(m_pl[k]) == pytest.approx(float(m_xla[k]), rel=1e-4, abs=1e-6), k
+    moved = jax.tree_util.tree_leaves(jax.tree.map(lambda a, b: jnp.max(jnp.abs(a - b)), s_xla.critic, s_pl.critic))
+    assert max(float(d) for d in moved) < 1e-5
 
 
 def _plain_ln(h, b, g, o, eps):

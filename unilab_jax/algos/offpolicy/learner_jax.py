@@ -25,7 +25,8 @@ for tests and tiny networks) go to ``jax.jit``. ``trace_count`` counts traces of
 the update is traced inside ``xp.compute_dtype``, so with "bfloat16" every network matmul (forward and
 backward) takes bf16 operands with float32 accumulation and results; parameters, optimizer states,
 norms, softmax, the C51 projection, log-probs and losses stay float32. "float32" traces exactly the
-float32 program.
+float32 program. ``config.ln_backward`` ("xla" or "pallas": ``unilab_jax.mixed_precision.ln_backward``) picks
+the backward pass of the bf16 LayerNorm + ReLU layers.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from unilab_jax import mixed_precision
 from unilab_jax import xp as shim
 from unilab_jax.algos.offpolicy import image_obs, td3
 from unilab_jax.algos.offpolicy import learner_common as common
@@ -74,8 +76,9 @@ class _Jitted:
 
     def traced_update(self, state: Any, batch: dict) -> tuple[Any, dict]:
         """The pure update as this learner compiles it: ``_update`` traced in the learner's ``compute_dtype``
-        (``training.sharding`` compiles this same function over several devices)."""
-        with XP.compute_dtype(self.compute_dtype):
+        and with the backward of its bf16 LayerNorm layers that ``config.ln_backward`` names (``training.sharding``
+        compiles this same function over several devices)."""
+        with XP.compute_dtype(self.compute_dtype), mixed_precision.ln_backward(self.config.ln_backward):
             return self._update(state, batch)
 
     def update(self, state: Any, batch: dict) -> tuple[Any, dict]:
