@@ -13,8 +13,9 @@ keeps the three column sums in float32 registers across its chunks. ``B`` not a 
 are padded with zeros (``dy = 0`` and ``rstd = 0`` there, so a padded row's ``dx``, ``dz`` and ``xhat`` are exactly
 zero and add nothing to the partial sums) and ``dh`` is cut back to ``B`` rows.
 
-On the CPU it runs in Pallas's interpreter (the tests); elsewhere through Pallas's GPU (Triton) lowering, whose
-blocks must have power-of-two sizes: ``supported`` says whether a width can take this kernel.
+On the CPU it runs in Pallas's interpreter (the tests); elsewhere through Pallas's Triton lowering, asked for by its
+compiler parameters (jax's default GPU lowering, Mosaic GPU, stages whole blocks in shared memory), whose blocks
+must have power-of-two sizes: ``supported`` says whether a width can take this kernel.
 """
 
 from __future__ import annotations
@@ -25,10 +26,12 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
+from jax.experimental.pallas import triton as pl_triton
 
 F32 = jnp.float32
 ROWS_PER_BLOCK = 64  # rows per program: E * B / 64 programs (256 for FastSAC Go1's E=2, B=8192)
 CHUNK_ELEMENTS = 8192  # elements of one chunk (rows x W) held in registers at a time
+NUM_WARPS = 8  # Triton warps per program (256 threads: 32 elements of a chunk each)
 
 
 def _interpret() -> bool:
@@ -68,9 +71,12 @@ def _kernel(h_ref: Any, dy_ref: Any, mu_ref: Any, rstd_ref: Any, b_ref: Any, g_r
     db_ref[...], dg_ref[...], do_ref[...] = sdb, sdg, sdo
 
 
-def ln_relu_backward(h: Any, dy: Any, mu: Any, rstd: Any, b: Any, g: Any, o: Any) -> tuple[Any, Any, Any, Any]:
+def ln_relu_backward(h: Any, dy: Any, mu: Any, rstd: Any, b: Any, g: Any, o: Any,
+                     interpret: bool | None = None) -> tuple[Any, Any, Any, Any]:
     """``[E, B, W]`` h and dy, ``[E, B, 1]`` mu and rstd, ``[E, 1, W]`` b, g, o -> dh ``[E, B, W]`` and the
-    partial sums of db, dg, do, each ``[E, n_blocks, W]`` float32 (sum them over axis 1)."""
+    partial sums of db, dg, do, each ``[E, n_blocks, W]`` float32 (sum them over axis 1). ``interpret``: None
+    interprets on the CPU backend only (False lowers to Triton, e.g. to lower for a GPU from a CPU machine)."""
+    interpret = _interpret() if interpret is None else interpret
     e, rows, width = h.shape
     block = min(ROWS_PER_BLOCK, 1 << (rows - 1).bit_length())  # a power of two; rows <= block fit one block
     chunk = min(block, _pow2_at_most(CHUNK_ELEMENTS // width))
@@ -88,7 +94,9 @@ def ln_relu_backward(h: Any, dy: Any, mu: Any, rstd: Any, b: Any, g: Any, o: Any
         grid=(e, n_blocks),
         in_specs=[row_block(width), row_block(width), row_block(1), row_block(1), per_member, per_member, per_member],
         out_specs=[row_block(width), per_block, per_block, per_block],
-        interpret=_interpret(),
+        interpret=interpret,
+        # Triton, not jax's default GPU lowering (Mosaic GPU, which stages whole blocks in shared memory)
+        compiler_params=None if interpret else pl_triton.CompilerParams(num_warps=NUM_WARPS),
         name="ln_relu_backward",
     )(h, dy, mu.astype(F32), rstd.astype(F32), b, g, o)
     return (dh[:, :rows] if pad else dh), db, dg, do

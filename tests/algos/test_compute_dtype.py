@@ -124,7 +124,7 @@ def _ln_case(rng, h_shape, p_shape):
     return mp._ln_fwd(h, b, g, o)[1], jnp.asarray(rng.normal(size=h_shape), jnp.bfloat16)
 
 
-@pytest.mark.parametrize("h_shape, p_shape", [((2, 64, 96), (2, 1, 96)), ((2, 100, 32), (32,)), ((100, 64), (64,)),
+@pytest.mark.parametrize("h_shape, p_shape", [((2, 64, 128), (2, 1, 128)), ((2, 100, 32), (32,)), ((100, 64), (64,)),
                                               ((3, 40, 16), (3, 40, 16))])
 def test_pallas_ln_backward_matches_xla(h_shape, p_shape):
     """The fused Pallas backward (interpreted on the CPU) against ``_ln_bwd``: an ensemble [E, B, W] with per-member
@@ -145,6 +145,21 @@ def test_pallas_ln_backward_matches_xla(h_shape, p_shape):
         else:
             assert np.linalg.norm(a - w) <= tol * np.linalg.norm(w)
     assert float(np.abs(np.asarray(got[1])).max()) > 0.1  # the sums are not all zero
+
+
+def test_pallas_ln_backward_lowers_to_triton_for_a_gpu():
+    """Lowered for CUDA from this CPU machine at FastSAC Go1's first critic layer ([2, 8192, 1024]): one Triton call
+    (jax's default GPU lowering, Mosaic GPU, would stage the 64-row blocks in shared memory and refuse them)."""
+    import functools
+
+    from unilab_jax import pallas_kernels
+
+    f32, bf16 = jnp.float32, jnp.bfloat16
+    shapes = [((2, 8192, 1024), bf16)] * 2 + [((2, 8192, 1), f32)] * 2 + [((2, 1, 1024), f32)] * 3
+    args = [jax.ShapeDtypeStruct(shape, dtype) for shape, dtype in shapes]
+    fused = jax.jit(functools.partial(pallas_kernels.ln_relu_backward, interpret=False))
+    text = fused.trace(*args).lower(lowering_platforms=("cuda",)).as_text()
+    assert text.count("xla.gpu.triton") == 1 and "tensor<2x128x1024xf32>" in text  # 128 blocks of 64 rows
 
 
 def test_ln_backward_switch_picks_the_kernel_at_trace_time():
