@@ -12,14 +12,20 @@
 #                      evaluation's first level (runtime configurations only: the MJX loop keeps no checkpoint;
 #                      VIDEO=0 skips them)
 # One 10-minute command holds one run of MAXS seconds (default 480) plus ~1 minute of set-up and videos; a run that
-# misses the criterion within MAXS records the budget (a lower bound in --report).
+# misses the criterion within MAXS records the budget (a lower bound in --report). RESUME=1 in the next call on the
+# same warm machine continues each seed's run from its final checkpoint for another MAXS seconds, its clock going on
+# (bench/time_to_target.py --resume; the new process's start-up counted again): the 600 s / 900 s goals over two
+# calls. Keep both calls' terrain.json records; the report counts the last record of each run. The workers' curricula
+# (terrain levels, command ranges) are not in the checkpoint: they start again from the initial levels, a handicap the
+# resumed time includes (the criterion's evaluation uses fixed upper-half levels, whatever the curriculum).
 set -u
 OUT=${OUT:-/tmp/p33_terrain}; mkdir -p "$OUT/metrics"
 ROBOTS="unitree_go1 unitree_go2 unitree_g1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
 RUNS=${RUNS_DIR:-/tmp/time_to_target_runs}
 python3 bench/time_to_target.py --only "$CONFIG" --seed $SEEDS --max_seconds "${MAXS:-480}" --commit "${COMMIT:-unknown}" \
-  --runs_dir "$RUNS" --metrics_dir "$OUT/metrics" --out "$OUT/terrain.json" ${EXTRA:+--extra="$EXTRA"} 2>&1 \
+  --runs_dir "$RUNS" --metrics_dir "$OUT/metrics" --out "$OUT/terrain.json" ${EXTRA:+--extra="$EXTRA"} \
+  ${RESUME:+--resume} 2>&1 \
   | grep -v -i warning | tail -${TAIL:-14}
 python3 bench/terrain_curves.py "$OUT/metrics" --out "$OUT/curves.json"
 gzip -f "$OUT"/metrics/*.jsonl

@@ -20,6 +20,11 @@ best return, throughput, the whole evaluation curve)::
     python bench/time_to_target.py --only go2_flashsac --seed 0 1 --max_seconds 270
     python bench/time_to_target.py --report          # table + ratios, writes the markdown table
 
+A run longer than one command (a 10-minute call on the GPU machine) goes on in the next with ``--resume``: the
+configuration's latest run of that seed under ``--runs_dir`` resumes from its final checkpoint (the trainer's clock
+goes on from the checkpoint's, the new process's start-up counted again) for another ``--max_seconds``; its record
+holds the whole run, and the report counts only the last record of each run (``logdir``).
+
 Configurations (``CONFIGS``): ``ppo_lockstep`` / ``appo_async`` / ``fastsac_async`` / ``flashsac_async`` /
 ``fastsac_hold`` (Go1), ``go2_flashsac`` (Go2), ``g1_fastsac`` (G1) and, on rough terrain, ``go1_rough_ppo``,
 ``go1_rough_fastsac``, ``go2_rough_flashsac``, ``g1_rough_fastsac`` run the heterogeneous runtime (CPU
@@ -46,6 +51,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
+import glob
 import hashlib
 import json
 import math
@@ -143,6 +149,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--extra", action="append", default=[], help="one more flag for the experiment script")
     ap.add_argument("--no_stop_at_target", action="store_true", help="train until the budget even after the goals")
     ap.add_argument("--runs_dir", default="/tmp/time_to_target_runs", help="where the runs' logdirs go")
+    ap.add_argument("--resume", action="store_true", help="continue each configuration's latest run of the seed "
+                    "under --runs_dir (from its checkpoint, its clock going on) for another --max_seconds")
     ap.add_argument("--metrics_dir", default=None, help="copy each run's metrics.jsonl here (<config>_s<seed>_<date>)")
     ap.add_argument("--commit", default=None, help="git commit to record (default: detected; the GPU machine's copy "
                     "has no .git)")
@@ -157,6 +165,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         ap.error(f"unknown configurations {unknown}; choose from {sorted(CONFIGS)}")
     if not args.report and not args.only:
         ap.error("give --only CONFIG [...] to run, or --report")
+    if args.resume and any(CONFIGS[n]["kind"] != "heterogeneous" for n in args.only):
+        ap.error("--resume continues runs of the heterogeneous runtime only (the MJX loop keeps no checkpoint)")
     return args
 
 
@@ -349,8 +359,11 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
     rough = bool(cfg.get("rough"))
     stamp = datetime.datetime.now().strftime("%Y%m%d_%H%M%S")
     logdir = os.path.join(args.runs_dir, f"{name}_s{seed}_{stamp}")
+    if args.resume:
+        logdir = latest_run(args.runs_dir, name, seed)
+        stamp = "_".join(os.path.basename(logdir).rsplit("_", 2)[1:])
     os.makedirs(logdir, exist_ok=True)
-    cmd = command(name, cfg, seed, logdir, args)
+    cmd = command(name, cfg, seed, logdir, args) + (["--resume"] if args.resume else [])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (REPO, os.environ.get("PYTHONPATH")) if p),
            "PYTHONUNBUFFERED": "1"}
     reader = MetricsReader(os.path.join(logdir, "metrics.jsonl"))
@@ -388,6 +401,9 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
               "returncode": proc.returncode, "bench_wall_s": time.time() - t_launch, "logdir": logdir,
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               **summarize(rows, target, rough)}
+    if args.resume:  # the whole run's clock: its budget is where this segment stopped it
+        clock = max((r["time/wall_s"] for r in rows if "time/wall_s" in r), default=args.max_seconds)
+        record.update(resumed=True, segment_max_seconds=args.max_seconds, max_seconds=round(clock, 1))
     if rough:  # issue 33's record: robot, algo, seed, time to the rough-terrain criterion, the terrain level's maximum
         robot, algo = cfg["rough"]
         record.update(robot=robot, algo=algo, time_to_walking_rough_s=record["time_to_walking_s"])
@@ -401,6 +417,22 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
     if stopped_by == "exit" and proc.returncode not in (0, None):
         record["stdout_tail"] = open(os.path.join(logdir, "stdout.log")).read()[-3000:]
     return record
+
+
+def latest_run(runs_dir: str, name: str, seed: int) -> str:
+    """The newest logdir of configuration ``name`` and ``seed`` under ``runs_dir`` that holds a checkpoint."""
+    runs = sorted(d for d in glob.glob(os.path.join(runs_dir, f"{name}_s{seed}_*_*"))
+                  if os.path.isdir(os.path.join(d, "checkpoints")))
+    if not runs:
+        print(f"error: --resume: no run of {name} seed {seed} with a checkpoint under {runs_dir}", file=sys.stderr)
+        sys.exit(2)
+    return runs[-1]
+
+
+def final_records(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The records that count: of the records of one run (``logdir``: its segments, ``--resume``) only the last."""
+    last = {r.get("logdir"): i for i, r in enumerate(records)}
+    return [r for i, r in enumerate(records) if r.get("logdir") is None or last[r["logdir"]] == i]
 
 
 def append(path: str, record: dict[str, Any]) -> None:
@@ -463,6 +495,7 @@ def aggregate(records: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     steps/s, best return. A configuration measured at several git commits (the code changed between runs)
     gets one group per commit, named ``config @ commit``."""
     out: dict[str, dict[str, Any]] = {}
+    records = final_records(records)
     names = [group_name(r, records) for r in records]
     for name in sorted(set(names)):
         rs = [r for r, n in zip(records, names) if n == name]

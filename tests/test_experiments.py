@@ -44,6 +44,9 @@ def test_ppo_go1_runs_and_resumes(tmp_path):
     train_steps = [r["step"] for r in rows if "loss/policy_loss" in r]
     assert train_steps == sorted(train_steps) and len(set(train_steps)) == len(train_steps)
     assert resumed and min(s for s in train_steps if s > steps[-1]) == steps[-1] + 24 * 2 * 32
+    # The clock goes on across the resume (the second process's start-up counted again): one run, timed as one.
+    clock = [r["time/wall_s"] for r in rows if "time/wall_s" in r]
+    assert clock == sorted(clock) and summary["wall_s"] > clock[0] + 1.0
 
 
 def test_ppo_g1_track_runs_and_reports_the_tracking_metric(tmp_path):

@@ -240,3 +240,48 @@ def test_rough_terrain_walking_criterion():
     mjx = ttt.command("mjx_go1_rough_ppo", ttt.CONFIGS["mjx_go1_rough_ppo"], 0, "/tmp/x",
                       ttt.parse_args(["--only", "mjx_go1_rough_ppo"]))
     assert "--task=go1_joystick_rough" in mjx and mjx[1].endswith("experiments/ppo_go1_mjx.py")
+
+
+RESUMABLE_EXPERIMENT = textwrap.dedent('''
+    """Stands in for a resumable experiment: the first process logs three evaluations short of the goals, keeps a
+    checkpoint and would run for minutes; with --resume its clock goes on from 3 s and it walks at 5 s."""
+    import argparse, json, os, time
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--logdir")
+    ap.add_argument("--seed", type=int)
+    ap.add_argument("--resume", action="store_true")
+    args, _ = ap.parse_known_args()
+    os.makedirs(os.path.join(args.logdir, "checkpoints"), exist_ok=True)
+    walls = [4.0, 5.0] if args.resume else [1.0, 2.0, 3.0]
+    with open(os.path.join(args.logdir, "metrics.jsonl"), "a") as f:
+        for wall in walls:
+            step = int(1000 * wall)
+            f.write(json.dumps({"step": step, "perf/env_steps_per_s": 500.0, "time/wall_s": wall}) + "\\n")
+            f.write(json.dumps({"step": step, "eval/return": 30.0, "eval/wall_s": wall, "eval/tracking_error": 0.2,
+                                "eval/yaw_rate_error": 0.2 if wall == 5.0 else 0.6, "eval/fall_rate": 0.0}) + "\\n")
+            f.flush()
+    time.sleep(300)
+''')
+
+
+def test_resume_continues_the_latest_run_and_the_report_counts_it_once(tmp_path):
+    script = tmp_path / "resumable_experiment.py"
+    script.write_text(RESUMABLE_EXPERIMENT)
+    runs = str(tmp_path / "runs")
+    cfg = {"kind": "heterogeneous", "sync": "async", "script": str(script), "eval_every": 1000,
+           "return_target": False}
+    first = ttt.run_one("fake", 0, ttt.parse_args(["--only", "fastsac_async", "--max_seconds", "2", "--runs_dir",
+                                                   runs]), cfg=cfg, poll_s=0.1)
+    assert first["stopped_by"] == "max_seconds" and not first["walking_reached"] and "--resume" not in first["command"]
+    second = ttt.run_one("fake", 0, ttt.parse_args(["--only", "fastsac_async", "--max_seconds", "5", "--runs_dir",
+                                                    runs, "--resume"]), cfg=cfg, poll_s=0.1)
+    assert "--resume" in second["command"] and second["logdir"] == first["logdir"] and second["resumed"]
+    # The whole run's rows, on its own clock: walking at 5 s of the run, whatever each process's start.
+    assert second["stopped_by"] == "target" and second["time_to_walking_s"] == 5.0 and len(second["evals"]) == 5
+    assert second["max_seconds"] == 5.0 and second["segment_max_seconds"] == 5.0
+    other = {**first, "logdir": "/elsewhere", "seed": 1}
+    assert ttt.final_records([first, other, second]) == [other, second]
+    with pytest.raises(SystemExit):  # nothing to resume
+        ttt.run_one("fake", 3, ttt.parse_args(["--only", "fastsac_async", "--runs_dir", runs, "--resume"]), cfg=cfg)
+    with pytest.raises(SystemExit):  # the MJX loop keeps no checkpoint
+        ttt.parse_args(["--only", "mjx_ppo", "--resume"])

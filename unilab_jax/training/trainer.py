@@ -171,7 +171,8 @@ class Trainer:
     def __init__(self, run: RunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
                  start_time: float | None = None, eval_overrides: dict[str, Any] | None = None):
         """``start_time``: wall clock that ``time/wall_s`` and ``eval/wall_s`` count from (the process
-        start when launched from the CLI, so compilation and worker start-up are included).
+        start when launched from the CLI, so compilation and worker start-up are included; moved back by a resumed
+        checkpoint's ``wall_s``, so the clock goes on across a resume).
         ``eval_overrides``: task overrides added for evaluations only (e.g. robot tasks evaluating on
         the robots that answer, ``min_envs``)."""
         self.t0 = time.time() if start_time is None else start_time
@@ -215,14 +216,17 @@ class Trainer:
                 state = self.parallel.place(state)
             self._resumed_meta = meta
             counters = {k: int(v) for k, v in meta["counters"].items()}
+            # The clock runs on across a resume: time/wall_s and eval/wall_s continue from the checkpoint's (this
+            # process's start-up counted again), so a run split over several processes is timed as one.
+            self.t0 -= float(meta.get("wall_s", 0.0))
             if meta.get("task") != self.run.task or meta.get("algo") != self.run.algo:
                 raise ValueError(f"--resume: checkpoint is {meta.get('algo')}/{meta.get('task')}, "
                                  f"not {self.run.algo}/{self.run.task}")
         return state, counters
 
     def _meta(self, counters: dict[str, int], source: Any = None) -> dict[str, Any]:
-        meta = {"counters": dict(counters), "algo": self.run.algo, "task": self.run.task,
-                "run": dataclasses.asdict(self.run), "config": dataclasses.asdict(self.config),
+        meta = {"counters": dict(counters), "wall_s": time.time() - self.t0, "algo": self.run.algo,
+                "task": self.run.task, "run": dataclasses.asdict(self.run), "config": dataclasses.asdict(self.config),
                 "task_overrides": {k: str(v) for k, v in self.task_overrides.items()}}
         replay = source.checkpoint_meta() if source is not None else None
         if replay is not None:
@@ -312,10 +316,11 @@ class Trainer:
     # -- the loop ----------------------------------------------------------------------------------
     def train(self) -> dict[str, Any]:
 
-        run, cfg, t_start, stop = self.run, self.config, self.t0, self._stop
+        run, cfg, stop = self.run, self.config, self._stop
         evaluator = AsyncEvaluator(self, stop, in_process=self._eval_in_process())
         learner = LearnerThread(run.platform)
         state, counters = self._init_state()
+        t_start = self.t0  # after _init_state: a resumed run's clock goes on from its checkpoint's
         log.info("learner state ready %.1f s after the start", time.time() - t_start)
         weights = nets.to_numpy(self.learner.weights(state))
         clips = None
