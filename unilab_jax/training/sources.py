@@ -71,6 +71,11 @@ def with_prior(online: dict, prior: dict | None) -> dict:
     return online if prior is None else rlpd.compose({k: online[k] for k in prior}, prior)
 
 
+def batch_rows(cfg: Any, prior: dict[str, np.ndarray] | None) -> tuple[int, int]:
+    """(online, prior) rows of each minibatch: RLPD's symmetric split with prior data, all online rows without."""
+    return rlpd.symmetric_split(cfg.batch_size, cfg.prior_fraction) if prior is not None else (cfg.batch_size, 0)
+
+
 def batch_layout(fields: dict[str, tuple[tuple[int, ...], Any]], cfg: Any,
                  prior: dict[str, np.ndarray] | None = None) -> dict[str, tuple]:
     """``{field: (shape, dtype)}`` of the minibatches a :class:`ReplaySource` hands the learner, from the replay rows'
@@ -79,12 +84,10 @@ def batch_layout(fields: dict[str, tuple[tuple[int, ...], Any]], cfg: Any,
     ``[U, B, ...]``, B split into online and prior rows as ``produce`` splits it (the prior's fields only, dtypes
     promoted as the concatenation promotes them). Host-drawn and device-mirror batches alike are arrays left on the
     default device (uncommitted)."""
-    u = cfg.updates_per_call
+    u, width = cfg.updates_per_call, sum(batch_rows(cfg, prior))
     if prior is None:
-        return {k: ((u, cfg.batch_size, *shape), np.dtype(dtype)) for k, (shape, dtype) in fields.items()}
-    b, b_prior = rlpd.symmetric_split(cfg.batch_size, cfg.prior_fraction)
-    return {k: ((u, b + b_prior, *fields[k][0]), np.result_type(fields[k][1], v.dtype))
-            for k, v in prior.items()}
+        return {k: ((u, width, *shape), np.dtype(dtype)) for k, (shape, dtype) in fields.items()}
+    return {k: ((u, width, *fields[k][0]), np.result_type(fields[k][1], v.dtype)) for k, v in prior.items()}
 
 
 class DeferredBatch:
@@ -151,8 +154,7 @@ class ReplaySource:
         self._pool, self._xp, self._cfg, self._mirror = pool, xp, cfg, mirror
         # Prior data (RLPD): each minibatch is (online, prior) rows as core.rlpd_kernels.symmetric_split says.
         self._prior = prior
-        self._rows = (rlpd.symmetric_split(cfg.batch_size, cfg.prior_fraction) if prior is not None
-                      else (cfg.batch_size, 0))
+        self._rows = batch_rows(cfg, prior)
         self._seed = seed % 2**32
         self._steps0 = counters["env_steps"]  # env steps before this process (resume)
         self._budget = max(int(total_steps) - self._steps0, 0)  # pool env steps this process may take

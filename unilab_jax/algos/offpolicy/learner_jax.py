@@ -92,23 +92,13 @@ class _Jitted:
         return self._init_state(self.init_params(_key_words(key)), jax.random.split(key)[1])
 
     def precompile(self, state: Any, batch_layout: dict[str, tuple]) -> None:
-        """Compiles ``update`` for a state shaped, typed and placed like ``state`` (not read nor donated) and
+        """Compiles ``update`` for a state shaped, typed and placed like ``state`` (lowered, not read nor donated) and
         minibatches of ``batch_layout`` (``{field: (shape, dtype)}``, arrays left on the default device), so that the
         first call with such arguments runs at once: the trainer does this from the start of a run, while the workers
         start and the rings fill (XLA's compile of a large update takes 14-18 s on the H100 machine)."""
         batch = {k: jax.ShapeDtypeStruct(shape, jax.dtypes.canonicalize_dtype(dtype))
                  for k, (shape, dtype) in batch_layout.items()}
-        self._update_jit.lower(_abstract(state), batch).compile()
-
-
-def _abstract(tree: Any) -> Any:
-    """Each array's shape, dtype, weak type and, where it is committed to a device, placement: the key under which
-    ``jax.jit`` caches a compiled program (an uncommitted array's placement is left open, as a call leaves it)."""
-    def leaf(x: Any) -> jax.ShapeDtypeStruct:
-        sharding = x.sharding if getattr(x, "committed", False) else None
-        return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding, weak_type=getattr(x, "weak_type", False))
-
-    return jax.tree.map(leaf, tree)
+        self._update_jit.lower(state, batch).compile()
 
 
 def make_td3_learner(algo: ModuleType, config: td3.TD3Config, spec: Any) -> TD3Learner:
