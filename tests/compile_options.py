@@ -18,7 +18,12 @@ from __future__ import annotations
 
 import os
 
-FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
+import jax
+
+# XLA's CPU options: a GPU compile refuses them ("No such compile option"), so the tests that also run on the GPU
+# machine (tests/algos/test_compute_dtype.py's Pallas checks) compile there with XLA's defaults.
+FAST_COMPILE = ({"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
+                if jax.default_backend() == "cpu" else {})
 FAST_COMPILE_FLAGS = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
 
 

@@ -129,7 +129,7 @@ def _ln_case(rng, h_shape, p_shape):
 def test_pallas_ln_backward_matches_xla(h_shape, p_shape):
     """The fused Pallas backward (interpreted on the CPU) against ``_ln_bwd``: an ensemble [E, B, W] with per-member
     parameters, B = 100 (not a multiple of the 64-row block: padded rows) with [W] parameters, a 2-D [B, W]; the
-    parameter gradients within 1e-5 relative, dh (bf16) within one bf16 rounding. Parameters that vary along the
+    parameter gradients within 1e-5 relative, dh (bf16) within one bf16 step. Parameters that vary along the
     rows (the last case) are not the kernel's: that one takes the XLA backward (no Pallas call) and is exact."""
     from unilab_jax import mixed_precision as mp
 
@@ -140,8 +140,10 @@ def test_pallas_ln_backward_matches_xla(h_shape, p_shape):
     for a, w, tol in zip(got, want, (None, 1e-5, 1e-5, 1e-5), strict=True):
         assert a.shape == w.shape and a.dtype == w.dtype
         a, w = np.asarray(a, np.float64), np.asarray(w, np.float64)
-        if tol is None:  # bf16 has 8 significant bits: one rounding is at most 2^-8 of the value
-            assert np.all(np.abs(a - w) <= 2.0 ** -8 * np.abs(w) + 1e-6)
+        if tol is None:  # both round a float32 dh to bf16 (8 significant bits); summed in another order, the two
+            # float32 values can fall either side of a rounding boundary: one bf16 step apart, at most 2^-7 of the value
+            # (the GPU's Triton kernel: 2 of 6,400 elements of the [100, 64] case, 0.76% apart)
+            assert np.all(np.abs(a - w) <= 2.0 ** -7 * np.abs(w) + 1e-6)
         else:
             assert np.linalg.norm(a - w) <= tol * np.linalg.norm(w)
     assert float(np.abs(np.asarray(got[1])).max()) > 0.1  # the sums are not all zero
