@@ -88,6 +88,17 @@ def test_play_refuses_a_missing_checkpoint(go1_run):
     assert done.returncode == 2 and "no checkpoint of step 7" in done.stderr and "steps: [" in done.stderr
 
 
+def test_play_without_the_video_writer_exits_2_before_the_rollout(tmp_path):
+    """Without imageio-ffmpeg, imageio would pick another plugin for ".mp4" (a TIFF writer that then fails on
+    ``fps``, leaving an 8-byte file, as on the GPU machine): --video stops at once with the install hint, no file."""
+    video = str(tmp_path / "go1.mp4")
+    code = ("import sys; sys.modules['imageio_ffmpeg'] = None; from unilab_jax.apps.play import main; "
+            f"sys.exit(main(['--logdir', {str(tmp_path / 'no_run')!r}, '--video', {video!r}]))")
+    done = _run(["-c", code])
+    assert done.returncode == 2 and "imageio-ffmpeg" in done.stderr and "unilab-jax[video]" in done.stderr
+    assert "no checkpoint" not in done.stderr and not os.path.exists(video)  # refused before loading the run
+
+
 def test_video_every_writes_clips_during_training(go1_run):
     import imageio.v3 as iio
 

@@ -36,6 +36,7 @@ from unilab_jax.training.evaluation import (  # noqa: E402  (the Python API name
     deterministic_policy,
     fps_of,
     run_episodes,
+    video_writer_missing,
     write_video,
 )
 
@@ -90,6 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes < 1 or (args.steps is not None and args.steps < 1) or min(args.width, args.height) < 1:
         parser.error("--episodes, --steps, --width and --height must be positive")
+    if args.video and (missing := video_writer_missing()) is not None:
+        print(f"error: {missing}", file=sys.stderr)  # before the rollout, not after it
+        return 2
     try:
         overrides = parse_overrides(args.task_config)
         run = saved_run.load(args.logdir, args.checkpoint, overrides)

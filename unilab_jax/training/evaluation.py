@@ -259,10 +259,23 @@ def fps_of(spec: Any) -> int:
     return max(1, round(1.0 / spec.ctrl_dt))
 
 
+def video_writer_missing() -> str | None:
+    """None where ``write_video`` can write an mp4, else why not (imageio's ffmpeg plugin needs imageio-ffmpeg,
+    which brings the ffmpeg binary; without it imageio would pick another plugin for ".mp4")."""
+    try:
+        import imageio  # noqa: F401
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError as e:
+        return f"writing an mp4 needs imageio and imageio-ffmpeg ({e}): pip install 'unilab-jax[video]'"
+    return None
+
+
 def write_video(frames: np.ndarray, path: str, fps: int) -> None:
     """Writes frames [T, H, W, 3] uint8 as an H.264 mp4 (the ffmpeg binary comes with imageio-ffmpeg)."""
     import warnings
 
+    if (missing := video_writer_missing()) is not None:
+        raise RuntimeError(missing)
     import imageio.v2 as imageio
 
     frames = np.asarray(frames)
@@ -272,8 +285,8 @@ def write_video(frames: np.ndarray, path: str, fps: int) -> None:
     # macro_block_size=1 keeps any frame size (the default pads to multiples of 16 with a warning)
     with warnings.catch_warnings():  # jax warns on any fork once imported; the ffmpeg child only execs
         warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
-        with imageio.get_writer(path, fps=fps, codec="libx264", macro_block_size=1, pixelformat="yuv420p",
-                                ffmpeg_log_level="error") as writer:
+        with imageio.get_writer(path, format="FFMPEG", fps=fps, codec="libx264", macro_block_size=1,
+                                pixelformat="yuv420p", ffmpeg_log_level="error") as writer:
             for f in frames.astype(np.uint8, copy=False):
                 writer.append_data(f)
 
