@@ -8,7 +8,8 @@
 #                      wall_s / step, max_terrain_level_fraction, git_commit, the evaluation curve): append its records
 #                      to bench/results/h100/phase3/terrain.json
 #   metrics/*.jsonl.gz each run's metrics; curves.json the mean terrain level against time (bench/terrain_curves.py)
-#   <config>_s<seed>_stairs_up.mp4, ..._stairs_down.mp4: the first seed's policy on each stairs type at the
+#   <config>_s<seed>_stairs_up.mp4, ..._stairs_down.mp4 (MPEG-4 Part 2 by OpenCV; bench/device_video.py --transcode
+#                      re-encodes them as H.264 here): the first seed's policy on each stairs type at the
 #                      evaluation's first level (runtime configurations only: the MJX loop keeps no checkpoint;
 #                      VIDEO=0 skips them)
 # One 10-minute command holds one run of MAXS seconds (default 480) plus ~1 minute of set-up and videos; a run that
@@ -20,7 +21,7 @@
 # resumed time includes (the criterion's evaluation uses fixed upper-half levels, whatever the curriculum).
 set -u
 OUT=${OUT:-/tmp/p33_terrain}; mkdir -p "$OUT/metrics"
-ROBOTS="unitree_go1 unitree_go2 unitree_g1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
+ROBOTS="${ROBOTS:-unitree_go1 unitree_go2 unitree_g1}" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
 RUNS=${RUNS_DIR:-/tmp/time_to_target_runs}
 python3 bench/time_to_target.py --only "$CONFIG" --seed $SEEDS --max_seconds "${MAXS:-480}" --commit "${COMMIT:-unknown}" \
@@ -39,7 +40,9 @@ PY
 first=$(ls -d "$RUNS/${CONFIG}_s${SEEDS%% *}_"* 2>/dev/null | tail -1)
 if [ "${VIDEO:-1}" = 1 ] && [ -n "$first" ] && ls "$first" | grep -q -i checkpoint; then
   for stairs in stairs_up stairs_down; do
-    python3 -m unilab_jax.play --logdir "$first" --video "$OUT/${CONFIG}_s${SEEDS%% *}_$stairs.mp4" --steps "${STEPS:-500}" \
-      --width 640 --height 480 --task_config "terrain_columns=('$stairs',)" 2>&1 | grep -v -i warning | tail -12
+    # the GPU machine has OpenCV, not imageio-ffmpeg: MPEG-4 Part 2 there, to re-encode here
+    # (python bench/device_video.py --transcode SRC DST)
+    python3 bench/device_video.py --logdir "$first" --out "$OUT/${CONFIG}_s${SEEDS%% *}_$stairs.mp4" \
+      --steps "${STEPS:-500}" --task_config "terrain_columns=('$stairs',)" 2>&1 | grep -v -i warning | tail -12
   done
 fi

@@ -13,6 +13,8 @@ set -u
 OUT=${OUT:-/tmp/p37}; mkdir -p "$OUT/runs"
 ROBOTS="wonik_allegro" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
+# side by side on one GPU: each process allocates what it uses, not 75% of the memory (three would not fit)
+export XLA_PYTHON_CLIENT_PREALLOCATE=false
 SEEDS=${SEEDS:-"0 1 2"}; ROLE=${ROLE:-hora}; SETTING=${SETTING:-base}; MAXS=${MAXS:-450}
 workers=$(( ($(nproc) - 1) / $(echo $SEEDS | wc -w) ))  # 16 cores, 3 seeds: 5 workers each
 fixed="--config lr_schedule=fixed --config learning_rate=${LR:-3e-4}"
