@@ -11,7 +11,10 @@ per-step rotation term) and ``eval_episodes``; ``env_steps``, ``wall_s`` and ``i
 time limit before its step budget) are the run's; ``curve`` lists every
 evaluation as [env steps, rotation rate, time to fall]. A record replaces the file's record of the same
 (setting, role, seed). ``--report`` prints, per setting and role, the mean over seeds against the goal
-(teacher >= 0.2 rad/s with time to fall >= 0.8; student >= 0.8 of its teacher's rate).
+(teacher >= 0.2 rad/s with time to fall >= 0.8; student >= 0.8 of its teacher's rate). ``--png PATH`` draws every
+record's curve (rotation rate and time to fall against env steps; needs matplotlib, the ``dev`` extra):
+
+    python bench/allegro_results.py --out bench/results/h100/phase3/allegro.json --png docs/allegro_curves.png
 """
 
 from __future__ import annotations
@@ -72,6 +75,43 @@ def report(records: list[dict]) -> list[str]:
     return lines
 
 
+def plot(records: list[dict], path: str) -> int:
+    """The records' curves in two panels (rotation rate, time to fall), a colour per (setting, role), a line per
+    seed; the goal's lines dashed. Returns the number of curves drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_rate, ax_ttf) = plt.subplots(1, 2, figsize=(10, 3.6))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    groups = list(dict.fromkeys((r["setting"], r["role"]) for r in records))
+    drawn = 0
+    for r in records:
+        if not r.get("curve"):
+            continue
+        steps, rate, ttf = zip(*r["curve"], strict=True)
+        i = groups.index((r["setting"], r["role"]))
+        label = f"{r['role']} ({r['setting']})" if r["seed"] == min(
+            q["seed"] for q in records if (q["setting"], q["role"]) == groups[i]) else None
+        x = [s / 1e6 for s in steps]
+        ax_rate.plot(x, rate, marker=".", color=colours[i % len(colours)], label=label, alpha=0.8)
+        ax_ttf.plot(x, ttf, marker=".", color=colours[i % len(colours)], alpha=0.8)
+        drawn += 1
+    for ax, goal, name in ((ax_rate, GOAL_RATE, "rotation rate (rad/s)"), (ax_ttf, GOAL_TTF, "time to fall (episode)")):
+        ax.axhline(goal, color="grey", linestyle="--", linewidth=1)
+        ax.set_xlabel("env steps of the role (M)")
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+        ax.set_xlim(left=0)
+        ax.set_ylim(bottom=0)
+    ax_rate.legend(fontsize=8)
+    fig.suptitle("Allegro in-hand rotation: evaluations per seed", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return drawn
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, help="the results JSON (created if absent)")
@@ -82,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--machine", default="H100 + 16 cores")
     parser.add_argument("--command", default="", help="the command the runs were made with")
     parser.add_argument("--report", action="store_true", help="print the file's table")
+    parser.add_argument("--png", default="", help="draw the file's curves into this PNG")
     args = parser.parse_args(argv)
     records = []
     if os.path.isfile(args.out):
@@ -108,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(new)} record(s) -> {args.out}")
     if args.report:
         print("\n".join(report(records)))
+    if args.png:
+        print(f"{plot(records, args.png)} curves -> {args.png}")
     return 0
 
 

@@ -49,3 +49,15 @@ def test_records_replace_by_setting_role_seed_and_report_the_goal(tmp_path, caps
     assert ar.main(["--out", out, "--run", "critic=" + teacher[0]]) == 2
     assert ar.main(["--out", out, "--run", "ppo=" + str(tmp_path / "missing")]) == 2
     assert "ROLE=LOGDIR" in capsys.readouterr().err
+
+
+def test_png_draws_one_curve_per_record_with_evaluations(tmp_path):
+    out = str(tmp_path / "allegro.json")
+    for seed, rates in ((0, [0.1, 0.25]), (1, [0.05, 0.3])):
+        assert ar.main(["--out", out, "--setting", "all", "--seed", str(seed),
+                        "--run", f"teacher={_run(tmp_path / f't{seed}', rates)}"]) == 0
+    png = str(tmp_path / "curves.png")
+    with open(out) as f:
+        assert ar.plot(json.load(f)["records"], png) == 2
+    with open(png, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
