@@ -24,8 +24,9 @@ OUT=${OUT:-/tmp/p33_terrain}; mkdir -p "$OUT/metrics"
 ROBOTS="${ROBOTS:-unitree_go1 unitree_go2 unitree_g1}" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
 RUNS=${RUNS_DIR:-/tmp/time_to_target_runs}
+extra=(); for x in ${EXTRA:-}; do extra+=("--extra=$x"); done  # EXTRA: flags for the experiment, space-separated
 python3 bench/time_to_target.py --only "$CONFIG" --seed $SEEDS --max_seconds "${MAXS:-480}" --commit "${COMMIT:-unknown}" \
-  --runs_dir "$RUNS" --metrics_dir "$OUT/metrics" --out "$OUT/terrain.json" ${EXTRA:+--extra="$EXTRA"} \
+  --runs_dir "$RUNS" --metrics_dir "$OUT/metrics" --out "$OUT/terrain.json" "${extra[@]}" \
   ${RESUME:+--resume} 2>&1 \
   | grep -v -i warning | tail -${TAIL:-14}
 python3 bench/terrain_curves.py "$OUT/metrics" --out "$OUT/curves.json"
