@@ -8,8 +8,8 @@ import gzip
 import json
 import sys
 
-KEEP = ("step", "time/wall_s", "episode/success_rate", "episode/return", "perf/env_steps_per_s", "loss/q_std",
-        "loss/critic", "loss/alpha")
+KEEP = ("step", "time/wall_s", "episode/success_rate", "episode/return", "episode/late_fraction",
+        "perf/env_steps_per_s", "loss/q_std", "loss/critic", "loss/alpha")
 
 
 def compact(src: str, dst: str, every: int = 500) -> int:

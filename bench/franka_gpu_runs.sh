@@ -4,11 +4,18 @@
 #   JOB_TIMEOUT=360 COMMIT=<this checkout's commit> bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
 # (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 360 in a 10-minute call: 400 ran past 560 s)
 # JOB = rlpd_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
-#       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN; SPEED (default 10) sets --speed.
+#       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN | rlpd_pick_images_pair_sN
+#       | rlpd_peg_images_rt_sN; SPEED (default 10) sets --speed.
+# _pair: 6 Franka + 6 UR5e robots alternating in the inventory (both kinds train and evaluate), one policy; its
+# 40-episode evaluations run on each arm (..._eval40_<step>.json the Franka, ..._ur5e_eval40_<step>.json the UR5e).
+# _rt: image RLPD peg insertion in real time (--speed=1, whatever SPEED says): the learner must keep up;
+# episode/late_fraction in the metrics is the share of steps whose action reached a robot after its control period
+# (the robot held its last command).
 # The image jobs: front + wrist cameras at 64 px, 2 frames each, DrQ's encoder; the critic reads the same images and
 # proprioception (no object pose anywhere), or with _asym also the privileged state (the actor its own encoder).
 # Five runs at once share the GPU at ~75 env steps/s each, two at ~186 (H100 + 16 cores).
 R=$(printf 'sim:franka_emika_panda,%.0s' $(seq 12)); R=${R%,}
+RP=$(printf 'sim:franka_emika_panda,sim:universal_robots_ur5e,%.0s' $(seq 6)); RP=${RP%,}
 F="--robots=$R --num_workers=8 --eval_envs=4 --eval_every=3000 --speed=${SPEED:-10} --total_steps=36000 --config utd=20 --config updates_per_call=64 --config publish_every=64"
 P="--dense_reward --task_config=lock_rotation=true --config init_alpha=0.01 --config utd=10"
 S="--observation=state"
@@ -26,6 +33,8 @@ job() {
     rlpd_pick_images) a="experiments/rlpd_franka_pick.py $F $I --config actor_every=20";;
     rlpd_peg_images_asym) a="experiments/rlpd_franka_peg.py $F $P $I --asymmetric --config actor_every=2";;
     rlpd_pick_images_asym) a="experiments/rlpd_franka_pick.py $F $I --asymmetric --config actor_every=20";;
+    rlpd_peg_images_rt) a="experiments/rlpd_franka_peg.py ${F/--speed=${SPEED:-10}/--speed=1} $P $I --config actor_every=2";;
+    rlpd_pick_images_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I --config actor_every=20";;
   esac
   local d=runs/$name
   timeout ${JOB_TIMEOUT:-540} python3 $a --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log
@@ -34,6 +43,7 @@ job() {
   local dr=""; case $kind in *peg*) dr="--task_config=dense_reward=true";; esac
   for c in $(ls $d/checkpoints 2>/dev/null | sort -n | tail -3); do
     JAX_PLATFORMS=cpu timeout 120 python3 -m unilab_jax.play --logdir=$d --checkpoint=$c --episodes=40 --seed=1 --task_config='robots=()' $dr > $OUT/${name}_eval40_$c.json 2>> $OUT/$name.log &
+    [ "${kind%_pair}" != "$kind" ] && JAX_PLATFORMS=cpu timeout 120 python3 -m unilab_jax.play --logdir=$d --checkpoint=$c --episodes=40 --seed=1 --task_config='robots=()' --task_config=arm=ur5e $dr > $OUT/${name}_ur5e_eval40_$c.json 2>> $OUT/$name.log &
   done; wait
 }
 for j in "$@"; do job $j & done

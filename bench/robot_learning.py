@@ -2,12 +2,14 @@
 
     python bench/robot_learning.py --out bench/results/h100/phase3/robot_learning.json --commit abc1234 DIR [DIR ...]
 
-Each DIR holds ``bench/franka_gpu_runs.sh``'s outputs; every ``<job>_eval40_<step>.json`` in it (``python -m
-unilab_jax.play``'s report on the checkpoint of env step ``<step>``) becomes a record: ``task``, ``algo``,
+Each DIR holds ``bench/franka_gpu_runs.sh``'s outputs; every ``<job>[_<arm>]_eval40_<step>.json`` in it (``python -m
+unilab_jax.play``'s report on the checkpoint of env step ``<step>``, evaluated on ``arm``: ``franka`` unless the
+name says ``ur5e``) becomes a record: ``arm``, ``task``, ``algo``,
 ``episodes`` and ``success`` (the success rate) from the report; ``observation`` (``images`` for the ``*_images*``
 jobs, else ``state``), ``asymmetric`` (``*_asym_*``: the critic also reads the privileged state) and ``seed``
 (``_sN``) from the job's name; ``env_steps``; ``robot_minutes`` = env steps / (control rate x 60), the control
-rate being the report's ``fps``. A record replaces the file's record of the same job and env step.
+rate being the report's ``fps``. A record replaces the file's record of the same job, arm and env step (a record
+without ``arm`` is the Franka's).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import os
 import re
 import sys
 
-REPORT = re.compile(r"^(?P<job>.+_s(?P<seed>\d+))_eval40_(?P<step>\d+)\.json$")
+REPORT = re.compile(r"^(?P<job>.+_s(?P<seed>\d+))(?:_(?P<arm>ur5e))?_eval40_(?P<step>\d+)\.json$")
 
 
 def records(folder: str, commit: str) -> list[dict]:
@@ -32,7 +34,7 @@ def records(folder: str, commit: str) -> list[dict]:
         with open(path) as f:
             report = json.load(f)
         job, step = m["job"], int(m["step"])
-        out.append({"job": job, "task": report["task"], "algo": report["algo"],
+        out.append({"job": job, "arm": m["arm"] or "franka", "task": report["task"], "algo": report["algo"],
                     "observation": "images" if "_images" in job else "state", "asymmetric": "_asym_" in job,
                     "seed": int(m["seed"]), "env_steps": step, "robot_minutes": step / (report["fps"] * 60.0),
                     "episodes": int(report["episodes"]), "success": report["success_rate"], "commit": commit})
@@ -40,9 +42,10 @@ def records(folder: str, commit: str) -> list[dict]:
 
 
 def merge(existing: list[dict], new: list[dict]) -> list[dict]:
-    """``existing`` with ``new`` added, a new record replacing one of the same job and env step."""
-    keys = {(r["job"], r["env_steps"]) for r in new}
-    return [r for r in existing if (r["job"], r["env_steps"]) not in keys] + new
+    """``existing`` with ``new`` added, a new record replacing one of the same job, arm and env step."""
+    key = lambda r: (r["job"], r.get("arm", "franka"), r["env_steps"])
+    keys = {key(r) for r in new}
+    return [r for r in existing if key(r) not in keys] + new
 
 
 def main() -> None:
@@ -60,7 +63,7 @@ def main() -> None:
     with open(args.out, "w") as f:
         json.dump(merged, f, indent=1)
     for r in new:
-        print(f"{r['job']:28s} {r['robot_minutes']:6.1f} robot-min  success {r['success']:.3f} "
+        print(f"{r['job']:28s} {r['arm']:6s} {r['robot_minutes']:6.1f} robot-min  success {r['success']:.3f} "
               f"({r['episodes']} episodes)")
 
 

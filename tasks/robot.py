@@ -35,7 +35,10 @@ stalls, for ``operator_segment`` steps; ``always`` has it drive whole episodes (
 executed action is the transition's ``action``, and every transition records who chose it in the
 ``source`` field (0 policy, 1 operator; ``SOURCE_POLICY`` / ``SOURCE_OPERATOR``). Per episode the task
 reports ``intervention_rate`` (operator steps / steps) and ``interventions`` (takeovers) as episode
-metrics (logged as ``episode/intervention_rate``, ``episode/interventions``). The operator runs here,
+metrics (logged as ``episode/intervention_rate``, ``episode/interventions``), and ``late_fraction``: the share of
+the episode's steps whose action reached the robot after a full control period (the robot held its last command
+meanwhile; ``info["late"]`` of each step), the measure of whether the learner and the policy keep up with
+robots in real time. The operator runs here,
 beside the robot client, so it works the same for robots behind remote servers.
 
 Robots step concurrently (one thread each; a step blocks for a control period). A lost robot (its server
@@ -63,7 +66,7 @@ from unilab_jax.robots.operator import ExpertOperator, OperatorConfig
 KINDS = ("franka", "ur5e")
 REWARD_TERMS = ("task",)
 SOURCE_POLICY, SOURCE_OPERATOR = 0, 1
-EPISODE_METRICS = ("intervention_rate", "interventions")
+EPISODE_METRICS = ("intervention_rate", "interventions", "late_fraction")
 CAMERAS = ("front", "wrist")  # what the simulated robots render (unilab_jax.robots.sim.CAMERAS)
 CAMERA_GEOMETRY = ("visual", "collision")  # unilab_jax.robots.sim.CAMERA_GEOMETRY
 
@@ -199,6 +202,7 @@ class RobotTask(base.Task):
         self._stack = np.zeros((n, *image_shape), np.uint8)  # each env's frame stack (cameras only)
         self.set_operator(config.operator)
         self.steps = np.zeros(n, np.int64)
+        self._late = np.zeros(n, np.int64)  # per env: this episode's steps whose action came late (``info["late"]``)
         self._last = [dict[str, np.ndarray]() for _ in range(n)]
         # In-process cameras render in the thread that created their GL context: no step threads then.
         threads = n > 1 and not (config.cameras and not config.robots)
@@ -345,6 +349,7 @@ class RobotTask(base.Task):
         for i, g in enumerate(got):
             self._last[i] = self._rejoin(i) if i in lost or isinstance(g, RobotError) else g
         self.steps[:] = 0
+        self._late[:] = 0
         for op in self.operators:
             op.reset()
         self._restack(range(self.num_envs))
@@ -376,13 +381,15 @@ class RobotTask(base.Task):
             self._reset_all(lost)
             raise base.StepInterrupted(reason, *self._observe_all())
         self.steps += 1
+        self._late += np.array([bool(g.info["late"]) for g in got])
         reward = np.array([g.reward for g in got], np.float32)
         term = np.array([g.terminated for g in got], bool)
         trunc = (np.array([g.truncated for g in got], bool) | (self.steps >= self.length)) & ~term
         for i, g in enumerate(got):
             self._last[i] = g.obs
         extras = {"source": source, "intervention_rate": np.zeros(self.num_envs, np.float32),
-                  "interventions": np.zeros(self.num_envs, np.float32)}
+                  "interventions": np.zeros(self.num_envs, np.float32),
+                  "late_fraction": (self._late / self.steps).astype(np.float32)}
         if self.operators or self.config.lock_rotation:
             extras["action"] = a
         for i, op in enumerate(self.operators):
@@ -404,6 +411,7 @@ class RobotTask(base.Task):
                 if self.operators:
                     self.operators[i].reset()
             self.steps[done] = 0
+            self._late[done] = 0
             self._restack(done)
             obs, critic = self._observe_all()
         return base.StepOut(obs, critic, next_obs, next_critic, reward, term, trunc, {"task": reward.copy()}, extras)

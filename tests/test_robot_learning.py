@@ -42,3 +42,17 @@ def test_a_folder_without_reports_exits_2(tmp_path):
     out = subprocess.run([sys.executable, SCRIPT, str(tmp_path), "--out", str(tmp_path / "o.json"), "--commit", "x"],
                          capture_output=True, text=True)
     assert out.returncode == 2 and "no <job>_eval40_<step>.json report" in out.stderr
+
+
+def test_a_pair_jobs_reports_per_arm_are_records_of_their_arm(tmp_path):
+    """The Franka + UR5e job evaluates each checkpoint on both arms: two records of one job and env step, and a
+    record without ``arm`` (written before the field) counts as the Franka's when a rerun replaces it."""
+    runs, out = tmp_path / "runs", tmp_path / "robot_learning.json"
+    runs.mkdir()
+    out.write_text(json.dumps([{"job": "rlpd_pick_images_pair_s0", "env_steps": 3000, "success": 0.1}]))
+    _report(runs, "rlpd_pick_images_pair_s0_eval40_3000.json", 0.5)
+    _report(runs, "rlpd_pick_images_pair_s0_ur5e_eval40_3000.json", 0.25)
+    subprocess.run([sys.executable, SCRIPT, str(runs), "--out", str(out), "--commit", "abc"], check=True,
+                   capture_output=True)
+    recs = json.loads(out.read_text())
+    assert sorted((r["arm"], r["success"], r["seed"]) for r in recs) == [("franka", 0.5, 0), ("ur5e", 0.25, 0)]

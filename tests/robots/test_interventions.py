@@ -142,3 +142,27 @@ def test_source_and_executed_action_travel_byte_exact_to_the_replay_batch():
     # Per-episode intervention counters (10 episodes of 30 steps): rates in (0, 1], at least one takeover.
     metrics = stats["episode_metrics"]
     assert 0.0 < metrics["intervention_rate"] <= 1.0 and metrics["interventions"] >= 1.0
+
+
+def test_late_fraction_is_the_share_of_an_episodes_steps_whose_action_came_late():
+    """``late_fraction`` (the speed-1 runs' measure of a learner keeping up): env 0's robot reports every second
+    action late; at the episode's last step (4) its metric is 2 / 4, env 1's 0, and the next episode counts anew."""
+    task = tasks.make("robot_pick_place", 2, 0, {"episode_length": 4})
+    try:
+        calls = []
+        step = task.robots[0].step
+
+        def late_every_other(action):
+            got = step(action)
+            calls.append(len(calls) % 2 == 1)
+            return got._replace(info={**got.info, "late": calls[-1]})
+
+        task.robots[0].step = late_every_other
+        task.reset()
+        fractions = [task.step(np.zeros((2, task.spec.action_dim), np.float32)).extras["late_fraction"]
+                     for _ in range(5)]
+        assert [float(f[0]) for f in fractions] == [0.0, 0.5, pytest.approx(1 / 3), 0.5, 0.0]
+        assert all(float(f[1]) == 0.0 for f in fractions)
+        assert "late_fraction" in task.spec.episode_metrics
+    finally:
+        task.close()
