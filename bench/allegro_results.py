@@ -9,7 +9,12 @@ the trainer's final one) gives ``rotation_rad_s`` (with ``rotation_rad_s_se``, i
 episodes, where the run logged it), ``time_to_fall`` (fraction of the episode), ``rotate_reward`` (mean
 per-step rotation term) and ``eval_episodes``; ``env_steps``, ``wall_s`` and ``interrupted`` (stopped by a signal or
 time limit before its step budget) are the run's; ``curve`` lists every
-evaluation as [env steps, rotation rate, time to fall]. A record replaces the file's record of the same
+evaluation as [env steps, rotation rate, time to fall]; ``final_evals`` the large evaluations of its last
+checkpoints where the logdir holds them (``final_eval_<step>.json``: ``python -m unilab_jax.play --checkpoint <step>
+--episodes N``'s report, written there by ``bench/p37_allegro.sh FINAL_EVAL=N``), each {checkpoint, episodes,
+rotation_rad_s, rotation_rad_s_se, time_to_fall}, and ``neighbour_gap_rad_s``, the rate difference of the last two
+of them (the issue asks for evaluations large enough that neighbouring checkpoints agree within 0.03 rad/s); the
+report then judges the role by its last large evaluation. A record replaces the file's record of the same
 (setting, role, seed). ``--report`` prints, per setting and role, the mean over seeds against the goal
 (teacher >= 0.2 rad/s with time to fall >= 0.8; student >= 0.8 of its teacher's rate). ``--png PATH`` draws every
 record's curve (rotation rate and time to fall against env steps; needs matplotlib, the ``dev`` extra):
@@ -22,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 
 ROLES = ("teacher", "student", "ppo")
@@ -40,11 +46,22 @@ def read_run(logdir: str) -> dict:
             row = json.loads(line)
             if "eval/rotation_rate" in row:
                 curve.append([row["step"], row["eval/rotation_rate"], row["eval/time_to_fall"]])
+    finals = []
+    for name in os.listdir(logdir):
+        m = re.fullmatch(r"final_eval_(\d+)\.json", name)
+        if m:
+            with open(os.path.join(logdir, name)) as f:
+                rep = json.load(f)
+            finals.append({"checkpoint": int(m[1]), "episodes": rep["episodes"], "rotation_rad_s": rep["rotation_rate"],
+                           "rotation_rad_s_se": rep["rotation_rate_se"], "time_to_fall": rep["time_to_fall"]})
+    finals.sort(key=lambda e: e["checkpoint"])
+    gap = abs(finals[-1]["rotation_rad_s"] - finals[-2]["rotation_rad_s"]) if len(finals) > 1 else None
     return {"rotation_rad_s": summary["eval/rotation_rate"],
             "rotation_rad_s_se": summary.get("eval/rotation_rate_se"),
             "time_to_fall": summary["eval/time_to_fall"], "rotate_reward": summary["eval/rotate_reward"],
             "eval_episodes": summary.get("eval/episodes"), "env_steps": summary["env_steps"],
-            "wall_s": summary["wall_s"], "interrupted": summary.get("interrupted"), "curve": curve}
+            "wall_s": summary["wall_s"], "interrupted": summary.get("interrupted"), "curve": curve,
+            **({"final_evals": finals, "neighbour_gap_rad_s": gap} if finals else {})}
 
 
 def merge(records: list[dict], new: list[dict]) -> list[dict]:
@@ -60,7 +77,10 @@ def report(records: list[dict]) -> list[str]:
     lines, groups = [], {}
     for r in records:
         groups.setdefault((r["setting"], r["role"]), []).append(r)
-    mean = lambda rs, k: sum(r[k] for r in rs) / len(rs)
+    def judged(r: dict, k: str) -> float:  # the last large evaluation's value where the record has one
+        return r["final_evals"][-1][k] if r.get("final_evals") else r[k]
+
+    mean = lambda rs, k: sum(judged(r, k) for r in rs) / len(rs)
     for (setting, role), rs in groups.items():
         rate, ttf = mean(rs, "rotation_rad_s"), mean(rs, "time_to_fall")
         if role == "student" and (setting, "teacher") in groups:
@@ -69,9 +89,15 @@ def report(records: list[dict]) -> list[str]:
         else:
             met = rate >= GOAL_RATE and ttf >= GOAL_TTF
             verdict = f"goal {'met' if met else 'missed'} (>= {GOAL_RATE} rad/s, time to fall >= {GOAL_TTF})"
-        rates = ", ".join(f"{r['rotation_rad_s']:.3f}" for r in rs)
-        lines.append(f"{setting:16s} {role:8s} seeds {len(rs)}: rate {rate:.3f} rad/s ({rates}), time to fall "
-                     f"{ttf:.2f}, {mean(rs, 'env_steps') / 1e6:.1f}M steps, {mean(rs, 'wall_s'):.0f} s; {verdict}")
+        rates = ", ".join(f"{judged(r, 'rotation_rad_s'):.3f}" for r in rs)
+        steps, wall = sum(r["env_steps"] for r in rs) / len(rs), sum(r["wall_s"] for r in rs) / len(rs)
+        final = [r for r in rs if r.get("final_evals")]
+        judged_by = (f" (last checkpoint, {min(r['final_evals'][-1]['episodes'] for r in final):.0f}+ episodes)"
+                     if len(final) == len(rs) else "")
+        gaps = [r["neighbour_gap_rad_s"] for r in final if r.get("neighbour_gap_rad_s") is not None]
+        gap = f", neighbouring checkpoints {max(gaps):.3f} rad/s apart at most" if gaps else ""
+        lines.append(f"{setting:16s} {role:8s} seeds {len(rs)}: rate {rate:.3f} rad/s ({rates}){judged_by}, time to "
+                     f"fall {ttf:.2f}, {steps / 1e6:.1f}M steps, {wall:.0f} s{gap}; {verdict}")
     return lines
 
 

@@ -5,7 +5,9 @@
 # (bench/allegro_results.py; copy it into bench/results/h100/phase3/allegro.json with --out there) and the runs'
 # metrics under $OUT/runs. Bundle: ROBOTS="wonik_allegro" bash ../shared/device/prepare.sh, carry .device.
 #   ROLE=hora SETTING=std SEEDS="0 1 2" COMMIT=$(git rev-parse --short HEAD) bash bench/p37_allegro.sh
-# A second call on the same warm machine with RESUME=1 continues the runs (runs/p37_* stay there).
+# A second call on the same warm machine with RESUME=1 continues the runs (runs/p37_* stay there); FINAL_EVAL=N and
+# VIDEO=1 (below) evaluate the last checkpoints at length and film the first seed, EVAL_ONLY=1 without training.
+# Under $OUT: allegro.json and p37_runs.tgz (logs, metrics, final evaluations, videos).
 # Settings (named options of the recipes, whose defaults stay): base; fixed_lr (lr_schedule=fixed at LR);
 # std (the action std's bound falls to STD over SCHED env steps); grasp (episodes start from the grasp cache);
 # all (the three); custom (EXTRA's flags). EXTRA is appended to every setting.
@@ -33,18 +35,47 @@ else
   cmd="python3 experiments/ppo_allegro_rotate.py --total_steps=${TOTAL_STEPS:-5000000} $common"
 fi
 echo "$ROLE $SETTING seeds $SEEDS, $workers workers each: $cmd"
-for s in $SEEDS; do
-  timeout -s TERM "$MAXS" $cmd --seed=$s --logdir=runs/p37_${ROLE}_${SETTING}_s$s > "$OUT/runs/${ROLE}_${SETTING}_s$s.log" 2>&1 &
-done
-wait
+dirs() {  # the logdirs of seed $1's runs (HORA: teacher and student; PPO: the run)
+  local d=runs/p37_${ROLE}_${SETTING}_s$1
+  if [ "$ROLE" = hora ]; then echo $d/teacher $d/student; else echo $d; fi
+}
+if [ "${EVAL_ONLY:-0}" != 1 ]; then
+  for s in $SEEDS; do
+    timeout -s TERM "$MAXS" $cmd --seed=$s --logdir=runs/p37_${ROLE}_${SETTING}_s$s > "$OUT/runs/${ROLE}_${SETTING}_s$s.log" 2>&1 &
+  done
+  wait
+fi
+# FINAL_EVAL=N: the deterministic policy of each run's last two checkpoints over N episodes (python -m
+# unilab_jax.play, one process each, side by side on the CPU cores), as final_eval_<step>.json in the logdir, which
+# bench/allegro_results.py reads (the record's final_evals and neighbour_gap_rad_s). Per-episode rates spread by
+# ~0.8 rad/s, so N ~ 2000 makes the standard error ~0.02. EVAL_ONLY=1 skips the training (a call of its own).
+if [ "${FINAL_EVAL:-0}" -gt 0 ]; then
+  for s in $SEEDS; do for d in $(dirs $s); do for c in $(ls $d/checkpoints 2>/dev/null | sort -n | tail -2); do
+    [ -f $d/final_eval_$c.json ] && continue
+    (JAX_PLATFORMS=cpu timeout "${FINAL_S:-480}" python3 -m unilab_jax.play --logdir $d --checkpoint $c \
+      --episodes "$FINAL_EVAL" --seed 7 > $d/final_eval_$c.part 2>> "$OUT/runs/final_eval.log" \
+      && mv $d/final_eval_$c.part $d/final_eval_$c.json) &
+  done; done; done
+  wait
+fi
 for s in $SEEDS; do
   d=runs/p37_${ROLE}_${SETTING}_s$s; runs=""
   for role in teacher student; do [ -f $d/$role/summary.json ] && runs="$runs --run $role=$d/$role"; done
   [ -f $d/summary.json ] && runs="--run ppo=$d"
-  tail -3 "$OUT/runs/${ROLE}_${SETTING}_s$s.log"
+  tail -3 "$OUT/runs/${ROLE}_${SETTING}_s$s.log" 2>/dev/null
   python3 bench/allegro_results.py --out "$OUT/allegro.json" --setting "$SETTING" --seed "$s" \
     --commit "${COMMIT:-unknown}" --command "$cmd" $runs
-  mkdir -p "$OUT/runs/s$s" && (cd $d && find . \( -name metrics.jsonl -o -name summary.json -o -name hora_summary.json \) \
-    -exec cp --parents {} "$OUT/runs/s$s" \;)
+  mkdir -p "$OUT/runs/s$s" && (cd $d && find . \( -name metrics.jsonl -o -name summary.json -o -name hora_summary.json \
+    -o -name 'final_eval_*.json' \) -exec cp --parents {} "$OUT/runs/s$s" \;)
 done
+# VIDEO=1: the first seed's policies turning each object shape (OpenCV's MPEG-4 on the GPU machine; re-encode here
+# with python bench/device_video.py --transcode SRC DST)
+if [ "${VIDEO:-0}" = 1 ]; then
+  for d in $(dirs ${SEEDS%% *}); do for shape in cylinder box; do
+    JAX_PLATFORMS=cpu python3 bench/device_video.py --logdir $d --out "$OUT/runs/$(basename $d)_$shape.mp4" --steps 400 \
+      --width 480 --height 360 --task_config "shapes=('$shape',)" 2>> "$OUT/runs/video.log" | grep -E '"(rotation_rate|video)"'
+  done; done
+fi
 python3 bench/allegro_results.py --out "$OUT/allegro.json" --report
+# one archive of logs, metrics, final evaluations and videos (a call returns at most 8 files, 2 folders down)
+tar czf "$OUT/p37_runs.tgz" -C "$OUT" runs && rm -rf "$OUT/runs"

@@ -61,3 +61,20 @@ def test_png_draws_one_curve_per_record_with_evaluations(tmp_path):
         assert ar.plot(json.load(f)["records"], png) == 2
     with open(png, "rb") as f:
         assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_final_evaluations_judge_the_role_and_give_the_neighbour_gap(tmp_path, capsys):
+    """``final_eval_<step>.json`` (play's report) in a logdir: the record lists them by checkpoint, the gap of the
+    last two (0.31 - 0.29 = 0.02), and the report's rate is the last large evaluation's, not the trainer's 0.5."""
+    run = _run(tmp_path / "t0", [0.1, 0.5], ttf=0.6)
+    for step, rate, ttf in ((4000, 0.31, 0.85), (3000, 0.29, 0.8), (2000, 0.1, 0.7)):
+        with open(os.path.join(run, f"final_eval_{step}.json"), "w") as f:
+            json.dump({"episodes": 768, "rotation_rate": rate, "rotation_rate_se": 0.01, "time_to_fall": ttf}, f)
+    out = str(tmp_path / "allegro.json")
+    assert ar.main(["--out", out, "--setting", "all", "--run", f"teacher={run}", "--report"]) == 0
+    (rec,) = json.load(open(out))["records"]
+    assert [e["checkpoint"] for e in rec["final_evals"]] == [2000, 3000, 4000]
+    assert abs(rec["neighbour_gap_rad_s"] - 0.02) < 1e-9 and rec["rotation_rad_s"] == 0.5
+    line = capsys.readouterr().out.splitlines()[-1]
+    assert "rate 0.310 rad/s" in line and "768+ episodes" in line and "0.020 rad/s apart" in line
+    assert "time to fall 0.85" in line and "goal met" in line
