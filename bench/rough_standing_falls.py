@@ -86,8 +86,11 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    import tasks
+
     rows = []
-    common = {"terrain_curriculum": False}
+    # the curriculum off where the task has one (the flat task's variants are measured the same way)
+    common = {"terrain_curriculum": False} if hasattr(tasks.default_config(args.task), "terrain_curriculum") else {}
     for name, overrides in variants:
         t0 = time.perf_counter()
         r = falls(args.task, {**common, **overrides}, args.envs, args.steps, args.level, args.seed)
