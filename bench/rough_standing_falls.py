@@ -32,21 +32,20 @@ def falls(task_name: str, overrides: dict, envs: int, steps: int, level: int | N
         if rough is not None and level is not None:
             rough.levels[:] = level
         task.reset()
-        per_type: dict[str, list[int]] = {}
-        total = 0
+        columns = rough.terrain.columns if rough is not None else ("",)
+        fell, seen = np.zeros(len(columns)), np.zeros(len(columns))  # per terrain column: falls, env steps
         zero = np.zeros((envs, task.spec.action_dim), np.float32)
         for _ in range(steps):
-            cols = rough.cols.copy() if rough is not None else None
+            cols = rough.cols.copy() if rough is not None else np.zeros(envs, int)  # where each env stepped
             out = task.step(zero)
-            total += int(out.terminated.sum())
-            if rough is not None:
-                for e in range(envs):
-                    t = rough.terrain.columns[cols[e]]
-                    per_type.setdefault(t, [0, 0])[1] += 1
-                    per_type[t][0] += int(out.terminated[e])
+            seen += np.bincount(cols, minlength=len(columns))
+            fell += np.bincount(cols, weights=out.terminated, minlength=len(columns))
+        total = int(fell.sum())
         out = {"terminations": total, "per_1000_env_steps": 1000.0 * total / (envs * steps)}
-        if per_type:
-            out["per_type_per_1000"] = {t: round(1000.0 * f / n, 3) for t, (f, n) in sorted(per_type.items())}
+        if rough is not None:  # columns of one terrain type counted together
+            names = np.array(columns)
+            by_type = {t: (fell[names == t].sum(), seen[names == t].sum()) for t in set(columns)}
+            out["per_type_per_1000"] = {t: round(1000.0 * f / n, 3) for t, (f, n) in sorted(by_type.items()) if n}
         return out
     finally:
         close = getattr(task, "close", None)
