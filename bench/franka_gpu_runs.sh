@@ -41,9 +41,12 @@ job() {
   python3 bench/compact_metrics.py $d/metrics.jsonl $OUT/$name.jsonl.gz >> $OUT/$name.log 2>&1
   cp $d/summary.json $OUT/${name}_summary.json 2>/dev/null
   local dr=""; case $kind in *peg*) dr="--task_config=dense_reward=true";; esac
+  local arms=franka; case $kind in *_pair) arms="franka ur5e";; esac
   for c in $(ls $d/checkpoints 2>/dev/null | sort -n | tail -3); do
-    JAX_PLATFORMS=cpu timeout 120 python3 -m unilab_jax.play --logdir=$d --checkpoint=$c --episodes=40 --seed=1 --task_config='robots=()' $dr > $OUT/${name}_eval40_$c.json 2>> $OUT/$name.log &
-    [ "${kind%_pair}" != "$kind" ] && JAX_PLATFORMS=cpu timeout 120 python3 -m unilab_jax.play --logdir=$d --checkpoint=$c --episodes=40 --seed=1 --task_config='robots=()' --task_config=arm=ur5e $dr > $OUT/${name}_ur5e_eval40_$c.json 2>> $OUT/$name.log &
+    for arm in $arms; do  # in-process robots of that arm; reports of another arm than the Franka's named _<arm>
+      local tag=""; [ $arm = franka ] || tag=_$arm
+      JAX_PLATFORMS=cpu timeout 120 python3 -m unilab_jax.play --logdir=$d --checkpoint=$c --episodes=40 --seed=1 --task_config='robots=()' --task_config=arm=$arm $dr > $OUT/${name}${tag}_eval40_$c.json 2>> $OUT/$name.log &
+    done
   done; wait
 }
 for j in "$@"; do job $j & done
