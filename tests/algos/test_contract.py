@@ -28,6 +28,7 @@ EXPECTED = {
     "fastsac": ("off_policy", "sac", "async", "replay", JAX_MLX, False, False, False),
     "flashsac": ("off_policy", "sac", "async", "replay", JAX_MLX, False, False, False),
     "rlpd": ("off_policy", "sac", "async", "replay", JAX_MLX, True, True, False),
+    "rlpd_flow": ("off_policy", "sac", "async", "replay", JAX_MLX, True, True, True),
     "sacflow": ("off_policy", "sac", "async", "replay", JAX_MLX, True, False, True),
     "hora_teacher": ("on_policy", "ppo", "lockstep", "trajectory", ("jax",), False, False, False),
     "hora_student": ("distillation", "adaptation", "async", "trajectory", ("jax",), False, False, False),
@@ -88,6 +89,13 @@ def test_hooks_defaults_and_declared_hooks():
     assert flow.noise_dim(2) == 17 * 2 and flow.learner_noise_dim(cfg, 2) == 4 * 2
     rcfg = algos.get("rlpd").Config(num_critics=5, actor_every=3)
     assert rlpd.critic_noise_shape(rcfg) == (5,) and rlpd.actor_every(rcfg) == 3
+    # RLPD Flow: the flow's noise (workers and learner) and RLPD's critic noise and delayed actor, both from its config.
+    both = contract.hooks(algos.get("rlpd_flow"))
+    fcfg = algos.get("rlpd_flow").Config(flow_steps=3, num_critics=5, actor_every=3)
+    assert both.noise_dim(2) == 17 * 2 and both.learner_noise_dim(fcfg, 2) == 4 * 2
+    assert both.critic_noise_shape(fcfg) == (5,) and both.actor_every(fcfg) == 3
+    assert both.prior_data and both.images
+    assert (fcfg.target_entropy_per_dim, fcfg.num_critics, fcfg.init_alpha) == (0.0, 5, 1.0)  # SAC Flow's, RLPD's
     with pytest.raises(ValueError, match="platform"):
         contract.hooks(algos.get("him_ppo")).check_run("mlx", None, None)
 
@@ -110,6 +118,8 @@ def test_nothing_probes_a_declaration_for_a_hook():
     ("flashsac", dict(v_min=1.0, v_max=0.0), "FlashSACConfig: need num_atoms >= 2"),
     ("rlpd", dict(subset_size=20), "RLPDConfig: need 1 <= subset_size <= num_critics"),
     ("sacflow", dict(flow_steps=0), "SACFlowConfig: flow_steps must be in"),
+    ("rlpd_flow", dict(flow_steps=0, subset_size=20), "RLPDFlowConfig: flow_steps must be in [1, 16], got 0; need 1 "
+     "<= subset_size"),
     ("td3", dict(compute_dtype="float16"), "TD3Config: compute_dtype must be"),
 ])
 def test_each_config_validates_its_own_fields(cls, kwargs, message):

@@ -1,5 +1,5 @@
-"""The MLX off-policy learners (SAC, FastSAC, FlashSAC, RLPD, SAC Flow, TD3) against the JAX ones: same state in,
-same batch, same noise, one update of U gradient steps on both, same state out.
+"""The MLX off-policy learners (SAC, FastSAC, FlashSAC, RLPD, SAC Flow, RLPD Flow, TD3) against the JAX ones: same
+state in, same batch, same noise, one update of U gradient steps on both, same state out.
 
 The JAX state is warmed up by one update first (non-trivial Adam moments, normalizer and reward
 statistics, a TD3 step counter off the delay phase), converted leaf by leaf with
@@ -21,7 +21,7 @@ from mlx_helpers import assert_runs_without_jax  # noqa: E402
 from mlx_helpers import leaf_errors as _leaf_errors  # noqa: E402
 
 from tasks.base import TaskSpec  # noqa: E402
-from unilab_jax.algos.offpolicy import fastsac, flashsac, rlpd, sac, sacflow, td3  # noqa: E402
+from unilab_jax.algos.offpolicy import fastsac, flashsac, rlpd, rlpdflow, sac, sacflow, td3  # noqa: E402
 from unilab_jax.algos.offpolicy import learner_mlx as mlx_off  # noqa: E402
 
 SPEC = TaskSpec(name="t", obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
@@ -39,6 +39,8 @@ CASES = {
     "rlpd": (rlpd, dict(num_critics=4, subset_size=2)),  # LayerNorm ensemble, subset-min target, mean-Q actor
     "rlpd_delayed": (rlpd, dict(num_critics=3, subset_size=2, actor_every=2)),  # actor on every 2nd step only
     "sacflow": (sacflow, dict(flow_steps=2)),  # gated K-step chain; its noise is [B, (K + 1) A]
+    # RLPD's ensemble and subset target, the flow's chain; every 2nd step moves the actor
+    "rlpd_flow": (rlpdflow, dict(num_critics=3, subset_size=2, flow_steps=2, actor_every=2)),
 }
 
 
@@ -166,7 +168,7 @@ sys.modules['optax'] = None
 import mlx.core as mx
 import numpy as np
 from tasks.base import TaskSpec
-from unilab_jax.algos.offpolicy import fastsac, flashsac, rlpd, sac, sacflow, td3
+from unilab_jax.algos.offpolicy import fastsac, flashsac, rlpd, rlpdflow, sac, sacflow, td3
 spec = TaskSpec(name='t', obs_dim=6, critic_obs_dim=8, action_dim=3, episode_length=50, ctrl_dt=0.02,
                 reward_terms=('r',))
 rng = np.random.default_rng(0)
@@ -177,7 +179,8 @@ batch = dict(obs=f(U, B, 6), critic_obs=f(U, B, 8), next_obs=f(U, B, 6), next_cr
              truncated=mx.array(rng.random((U, B)) < 0.1))
 small = dict(actor_hidden=(16,), critic_hidden=(16,), batch_size=B, updates_per_call=U)
 for module, extra in ((sac, {}), (fastsac, dict(num_atoms=11)), (flashsac, dict(num_atoms=11)), (td3, {}),
-                      (rlpd, dict(num_critics=3)), (sacflow, dict(flow_steps=2))):
+                      (rlpd, dict(num_critics=3)), (sacflow, dict(flow_steps=2)),
+                      (rlpdflow, dict(num_critics=3, flow_steps=2))):
     learner = module.make_learner('mlx', module.Config(**small, **extra), spec)
     state = learner.init(mx.random.key(0))
     state, metrics = learner.update(state, batch)

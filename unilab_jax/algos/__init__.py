@@ -5,7 +5,7 @@ JAX learner): algorithm name -> declaration module (``SYNC``, ``BUFFER``, ``Conf
 shim-written ``act`` for the workers; see docs/ARCHITECTURE.md) and (algorithm, platform) ->
 ``"module:factory"``, ``factory(declaration, config, spec) -> learner``. Each family keeps its
 declarations and learners in one folder: ``ppo/`` (PPO, APPO, HIM-PPO), ``offpolicy/`` (SAC, TD3,
-FastSAC, FlashSAC, RLPD, SAC Flow) and ``hora/`` (teacher and student).
+FastSAC, FlashSAC, RLPD, SAC Flow, RLPD Flow) and ``hora/`` (teacher and student).
 
 What a declaration provides, and the defaults of its optional hooks, is ``contract``'s. A third table records
 what the code does not say: each algorithm's family and the update its learners run; :func:`info` combines it
@@ -35,6 +35,7 @@ _ALGORITHMS: dict[str, str] = {
     "fastsac": f"{_OFF}.fastsac",
     "flashsac": f"{_OFF}.flashsac",
     "rlpd": f"{_OFF}.rlpd",
+    "rlpd_flow": f"{_OFF}.rlpdflow",
     "sacflow": f"{_OFF}.sacflow",
     "hora_teacher": f"{_HORA}.teacher",
     "hora_student": f"{_HORA}.student",
@@ -48,6 +49,7 @@ _LEARNERS: dict[str, dict[str, str]] = {
     "fastsac": _SAC_FAMILY,
     "flashsac": _SAC_FAMILY,
     "rlpd": _SAC_FAMILY,
+    "rlpd_flow": _SAC_FAMILY,
     "sacflow": _SAC_FAMILY,
     "hora_teacher": {"jax": f"{_HORA}.learner_jax:make_teacher_learner"},
     "hora_student": {"jax": f"{_HORA}.learner_jax:make_student_learner"},
@@ -66,6 +68,7 @@ _KINDS: dict[str, tuple[str, str, bool]] = {
     "fastsac": ("off_policy", "sac", False),
     "flashsac": ("off_policy", "sac", False),
     "rlpd": ("off_policy", "sac", False),
+    "rlpd_flow": ("off_policy", "sac", True),
     "sacflow": ("off_policy", "sac", True),
     "hora_teacher": ("on_policy", "ppo", False),
     "hora_student": ("distillation", "adaptation", False),

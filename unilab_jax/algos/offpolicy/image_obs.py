@@ -67,7 +67,7 @@ def check_algo(algo: ModuleType, spec: Any, config: Any) -> None:
     name = algo.__name__.rsplit(".", 1)[-1]
     if not contract.hooks(algo).images:
         raise ValueError(f"{name} does not learn from images, but task {spec.name!r} has image_shape {shape}; "
-                         f"use sac, rlpd or sacflow")
+                         f"use sac, rlpd, sacflow or rlpd_flow")
     if len(shape) != 3:
         raise ValueError(f"task {spec.name!r}: image_shape must be (H, W, C), got {shape}")
     pixels.flat_dim(shape, config.encoder_channels, config.encoder_strides)

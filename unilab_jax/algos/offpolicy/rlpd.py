@@ -14,14 +14,16 @@ with Offline Data", ICML 2023, arXiv:2302.02948). Design choices (the paper's):
   the actor and temperature moved on every ``actor_every``-th gradient step only (the paper's code moves
   them once per ``utd`` critic steps; the default 1 moves them every step).
 
-The SAC family learners run it (``learner_jax`` / ``learner_mlx``): ``CRITIC_NOISE`` asks them for a
+The SAC family learners run it (``learner_jax`` / ``learner_mlx``): ``critic_noise_shape`` asks them for a
 uniform ``[num_critics]`` draw per gradient step next to ``eps_next`` (``critic_loss`` gets both).
-Published weights are SAC's.
+Published weights are SAC's. RLPD Flow (``rlpdflow.py``) is this with SAC Flow's actor: ``critic_target`` and
+``critic_loss`` take the policy's draw (``sample``) as an argument.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 from unilab_jax import nets
@@ -100,18 +102,29 @@ def init_params(key: Any, obs_dim: int, critic_obs_dim: int, action_dim: int, co
     ka, kc = xp.random.split(key, 2)
     return {
         "actor": nets.init(ka, [obs_dim, *config.actor_hidden, 2 * action_dim], xp, final_scale=0.01),
-        "critic": ensemble_init(kc, [critic_obs_dim + action_dim, *config.critic_hidden, 1], config.num_critics, xp,
-                                layer_norm=config.critic_layer_norm),
+        "critic": critic_init(kc, critic_obs_dim, action_dim, config, xp),
     }
 
 
+def critic_init(key: Any, critic_obs_dim: int, action_dim: int, config: RLPDConfig, xp: shim.Backend) -> Any:
+    """The ``num_critics``-ensemble ``[critic_obs + A -> 1]``; LayerNorm in its hidden layers: ``critic_layer_norm``."""
+    return ensemble_init(key, [critic_obs_dim + action_dim, *config.critic_hidden, 1], config.num_critics, xp,
+                         layer_norm=config.critic_layer_norm)
+
+
+def gaussian_sample(actor: Any, obs_norm: Any, obs: Any, eps: Any) -> tuple[Any, Any]:
+    """SAC's tanh-Gaussian draw at ``obs``: (action [B, A], log_prob [B]); eps [B, A] standard normal."""
+    mean, log_std = policy(actor, obs_norm, obs)
+    return distributions.tanh_gaussian_sample(mean, log_std, eps)
+
+
 def critic_target(target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, mb: dict, eps_next: Any, u: Any,
-                  config: RLPDConfig) -> Any:
+                  config: RLPDConfig, sample: Callable = gaussian_sample) -> Any:
     """Soft target [B]: ``r + gamma (1 - terminated) (min_{e in S} Q'_e(s', a') - alpha log pi(a'|s'))``,
-    ``S`` the ``subset_size`` members with the smallest ``u`` [E]."""
+    ``S`` the ``subset_size`` members with the smallest ``u`` [E]; ``a'`` and ``log pi(a'|s')`` from
+    ``sample(actor, obs_norm, next_obs, eps_next)`` (SAC's tanh-Gaussian; RLPD Flow: the flow's chain)."""
     xp = shim.namespace(mb["reward"])
-    mean, log_std = policy(actor, norms.obs, mb["next_obs"])
-    next_action, next_log_prob = distributions.tanh_gaussian_sample(mean, log_std, eps_next)
+    next_action, next_log_prob = sample(actor, norms.obs, mb["next_obs"], eps_next)
     next_q = scalar_q(target_critic, critic_input(norms.critic, mb["next_critic_obs"], next_action))
     q_min = rlpd.ensemble_subset_min(next_q, rlpd.subset_mask(u, config.subset_size))
     return sac_core.sac_target(mb["reward"] / norms.reward_scale, discounts(mb, config.gamma), q_min, q_min,
@@ -119,11 +132,12 @@ def critic_target(target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, 
 
 
 def critic_loss(critic: Any, target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, mb: dict,
-                noise: tuple[Any, Any], config: RLPDConfig) -> tuple[Any, dict]:
-    """Ensemble MSE to the subset-min soft target; ``noise = (eps_next [B, A], u [E])``."""
+                noise: tuple[Any, Any], config: RLPDConfig, sample: Callable = gaussian_sample) -> tuple[Any, dict]:
+    """Ensemble MSE to the subset-min soft target; ``noise = (eps_next [B, A], u [E])`` (``sample``: the policy's
+    draw of the next action, as ``critic_target``'s)."""
     xp = shim.namespace(mb["reward"])
     eps_next, u = noise
-    y = critic_target(target_critic, actor, log_alpha, norms, mb, eps_next, u, config)
+    y = critic_target(target_critic, actor, log_alpha, norms, mb, eps_next, u, config, sample)
     q = scalar_q(critic, critic_input(norms.critic, mb["critic_obs"], mb["action"]))
     loss = rlpd.ensemble_critic_loss(q, y)
     return loss, {"critic_loss": loss, "q_mean": xp.mean(q), "q_std": xp.mean(xp.std(q, axis=0)),

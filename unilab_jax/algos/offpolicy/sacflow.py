@@ -91,15 +91,19 @@ def init_params(key: Any, obs_dim: int, critic_obs_dim: int, action_dim: int, co
                 xp: shim.Backend) -> dict[str, Any]:
     """``{"actor": {"velocity", "log_std"}, "critic": 2-ensemble [critic_obs + A -> 1]}``."""
     kv, ks, kc = xp.random.split(key, 3)
+    return {"actor": actor_init(kv, ks, obs_dim, action_dim, config, xp),
+            "critic": ensemble_init(kc, [critic_obs_dim + action_dim, *config.critic_hidden, 1], 2, xp)}
+
+
+def actor_init(k_velocity: Any, k_log_std: Any, obs_dim: int, action_dim: int, config: SACFlowConfig,
+               xp: shim.Backend) -> dict[str, Any]:
+    """The flow actor ``{"velocity", "log_std"}``: gates open (``gate_bias``), small candidate outputs."""
     k, a = config.flow_steps, action_dim
-    velocity = nets.init(kv, [obs_dim + a + k, *config.actor_hidden, 2 * a], xp, final_scale=0.01)
+    velocity = nets.init(k_velocity, [obs_dim + a + k, *config.actor_hidden, 2 * a], xp, final_scale=0.01)
     gate = xp.concat([xp.zeros((a,), dtype=xp.float32), xp.full((a,), config.gate_bias, dtype=xp.float32)])
     velocity[-1] = {**velocity[-1], "b": gate}
-    return {
-        "actor": {"velocity": velocity,
-                  "log_std": nets.init(ks, [obs_dim, *config.actor_hidden, a], xp, final_scale=0.01)},
-        "critic": ensemble_init(kc, [critic_obs_dim + a, *config.critic_hidden, 1], 2, xp),
-    }
+    return {"velocity": velocity,
+            "log_std": nets.init(k_log_std, [obs_dim, *config.actor_hidden, a], xp, final_scale=0.01)}
 
 
 def flow_steps(actor: dict, obs_dim: int, action_dim: int) -> int:
@@ -157,10 +161,12 @@ def critic_loss(critic: Any, target_critic: Any, actor: Any, log_alpha: Any, nor
 
 
 def actor_loss(actor: Any, critic: Any, log_alpha: Any, norms: Norms, mb: dict, eps: Any,
-               config: SACFlowConfig) -> tuple[Any, tuple]:
-    """``mean(alpha log pi(a|s) - min_i Q_i(s, a))`` through the K-step rollout (reparameterised)."""
+               config: SACFlowConfig, use_min: bool = True) -> tuple[Any, tuple]:
+    """``mean(alpha log pi(a|s) - min_i Q_i(s, a))`` through the K-step rollout (reparameterised); without
+    ``use_min`` Q is the critic ensemble's mean instead (RLPD Flow)."""
     xp = shim.namespace(mb["obs"])
     action, log_prob = sample(actor, norms.obs, mb["obs"], eps)
     q = scalar_q(critic, critic_input(norms.critic, mb["critic_obs"], action))
-    loss = sac_core.sac_actor_loss(q[0], q[1], log_prob, xp.exp(log_alpha))
+    q1, q2 = (q[0], q[1]) if use_min else (xp.mean(q, axis=0),) * 2
+    loss = sac_core.sac_actor_loss(q1, q2, log_prob, xp.exp(log_alpha))
     return loss, ({"actor_loss": loss, "entropy": -xp.mean(log_prob)}, log_prob)
