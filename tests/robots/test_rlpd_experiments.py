@@ -85,6 +85,10 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     # a critic with the privileged state beside an image-only actor only as the stated asymmetric actor-critic
     ("rlpd_franka_peg.py", ["--task_config=critic_state=true"], "use --asymmetric"),
     ("rlpd_franka_peg.py", ["--asymmetric", "--observation=state"], "--asymmetric: with --observation=images only"),
+    # --algo: the experiment's learner and data with another actor only; the flow actor's run builds its own config
+    ("rlpd_franka_peg.py", ["--algo=sac"], "--algo='sac': this experiment runs rlpd or rlpd_flow"),
+    ("sac_franka_peg.py", ["--algo=nope"], "--algo='nope': this experiment runs sac or sacflow"),
+    ("rlpd_franka_peg.py", ["--algo=rlpd_flow", "--config", "flow_steps=0"], "RLPDFlowConfig: flow_steps must be in"),
 ])
 def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message):
     # In this process (tests/script_helpers.py); the last check of the test above is a real process's exit 2.

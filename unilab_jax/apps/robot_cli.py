@@ -20,8 +20,8 @@ Flags beside the shared ones (``unilab_jax.apps.cli``):
   ``--asymmetric`` the critic also reads the privileged state and the actor has an encoder of its own, trained by
   the actor loss: ``actor_encoder``; a critic with privileged state and a shared encoder is refused),
   ``state`` (``STATE_TASK``: the robot's privileged object state, the state-based comparison) or ``proprio``
-  (nothing more); default: the experiment's. Images need an algorithm that learns from them (sac, rlpd, sacflow:
-  ``algos/offpolicy/image_obs.py``; checked with the image size before any robot starts). With
+  (nothing more); default: the experiment's. Images need an algorithm that learns from them (sac, rlpd, sacflow,
+  rlpd_flow: ``algos/offpolicy/image_obs.py``; checked with the image size before any robot starts). With
   images the replay ring holds at most ``--total_steps`` transitions unless ``--config replay_capacity=N`` is given
   (a 64 px transition with two cameras and 2 frames holds 96 KiB of images; the run prints the ring's size in shared
   memory).
@@ -31,6 +31,8 @@ Flags beside the shared ones (``unilab_jax.apps.cli``):
   + eval_envs <= robots``. Without ``--eval_every``, evaluation runs at the end on ``--eval_envs`` robots
   (default: all), once the workers have released them. An evaluation runs on the robots that answer within
   ``EVAL_CONNECT_S`` if some are gone for good (``eval/episodes`` says how many).
+* ``--algo``: the experiment's algorithm or another that the same learner runs on the same data with another actor
+  (``actor_variants``: ``rlpd_flow``, RLPD with SAC Flow's actor, for ``rlpd``; ``sacflow`` for ``sac``).
 * Algorithms with prior data (RLPD): ``--demos=DIR``, a replay store of demonstrations
   (``python -m unilab_jax.robots.record``) recorded on the same inventory; without it, ``--num_demos``
   episodes of the scripted expert are recorded on the run's robots first, into ``LOGDIR/demos`` (reused by
@@ -90,6 +92,9 @@ flags.DEFINE_bool("dense_reward", None, "sim: robots this run starts: dense shap
 flags.DEFINE_integer("num_demos", 20, "scripted-expert episodes recorded when --demos is not given (RLPD)")
 flags.DEFINE_bool("asymmetric", False, "with --observation=images: the critic also reads the privileged state "
                   "(object poses) and the actor, which reads images and proprioception only, has its own encoder")
+flags.DEFINE_string("algo", None, "the algorithm: the experiment's or one its learner runs on the same data with "
+                    "another actor (rlpd_franka_*.py: rlpd or rlpd_flow; sac_*.py: sac or sacflow); default: the "
+                    "experiment's")
 flags.DEFINE_enum("observation", None, list(OBSERVATIONS), "what the policy sees besides proprioception: images "
                   "(camera frames), state (the object state) or proprio (nothing else); default: the experiment's")
 
@@ -123,11 +128,24 @@ def report_robots(inv: Any, task: str) -> list:
     return found
 
 
+def actor_variants(algo: str) -> list[str]:
+    """The registered algorithms that ``--algo`` may put in place of ``algo``: those the same learner runs ("update")
+    on the same data (prior data, images), which differ from it in their actor (rlpd: rlpd, rlpd_flow)."""
+    want = algos.info(algo)
+    same = lambda i: (i.update, i.prior_data, i.images) == (want.update, want.prior_data, want.images)  # noqa: E731
+    return [name for name in algos.names() if same(algos.info(name))]
+
+
 def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
               default_total_steps: int, observation: str) -> tuple:
     import tasks
     from unilab_jax.config import apply_overrides, parse_overrides
 
+    if FLAGS.algo is not None:
+        variants = actor_variants(algo)
+        if FLAGS.algo not in variants:
+            raise FlagError(f"--algo={FLAGS.algo!r}: this experiment runs {' or '.join(variants)}")
+        algo = FLAGS.algo
     try:
         entries = robot_entries()
     except ValueError as e:
