@@ -3,11 +3,13 @@
 # (bench/compact_metrics.py) and evaluations go to $OUT. On the GPU machine, after bench/device_setup.sh:
 #   JOB_TIMEOUT=360 COMMIT=<this checkout's commit> bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
 # (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 360 in a 10-minute call: 400 ran past 560 s)
-# JOB = rlpd_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
+# JOB = rlpd_peg_sN | rlpdflow_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
 #       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN | rlpd_pick_images_pair_sN
 #       | rlpd_peg_images_rt_sN; SPEED (default 10) sets --speed.
 # _pair: 6 Franka + 6 UR5e robots alternating in the inventory (both kinds train and evaluate), one policy; its
 # 40-episode evaluations run on each arm (..._eval40_<step>.json the Franka, ..._ur5e_eval40_<step>.json the UR5e).
+# rlpdflow_peg: rlpd_peg's command (demonstrations, prior data, critics, flags) with SAC Flow's actor (--algo=rlpd_flow),
+# the issue-32 comparison of the two actors at the same robot time.
 # _rt: image RLPD peg insertion in real time (--speed=1, whatever SPEED says): the learner must keep up;
 # episode/late_fraction in the metrics is the share of steps whose action reached a robot after its control period
 # (the robot held its last command).
@@ -19,12 +21,14 @@ RP=$(printf 'sim:franka_emika_panda,sim:universal_robots_ur5e,%.0s' $(seq 6)); R
 F="--robots=$R --num_workers=8 --eval_envs=4 --eval_every=3000 --speed=${SPEED:-10} --total_steps=36000 --config utd=20 --config updates_per_call=64 --config publish_every=64"
 P="--dense_reward --task_config=lock_rotation=true --config init_alpha=0.01 --config utd=10"
 S="--observation=state"
+RLPD_PEG="experiments/rlpd_franka_peg.py $F $P $S --config actor_every=2"
 I="--task_config=image_size=64 --config encoder_channels=(32,32,32,32) --config encoder_strides=(2,1,1,1) --config feature_dim=50"
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
 job() {
   local name=$1 s=${1##*_s}; local kind=${name%_s*}; local a
   case $kind in
-    rlpd_peg) a="experiments/rlpd_franka_peg.py $F $P $S --config actor_every=2";;
+    rlpd_peg) a="$RLPD_PEG";;
+    rlpdflow_peg) a="$RLPD_PEG --algo=rlpd_flow";;
     sac_peg) a="experiments/sac_franka_peg.py $F $P $S";;
     rlpd_pick) a="experiments/rlpd_franka_pick.py $F $S --config actor_every=20";;
     sac_pick) a="experiments/sac_franka_pick.py $F --nodense_reward $S --config actor_hidden=(128,128) --config critic_hidden=(128,128)";;
