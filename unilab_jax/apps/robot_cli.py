@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import operator
 import os
 import shutil
 import signal
@@ -131,9 +132,8 @@ def report_robots(inv: Any, task: str) -> list:
 def actor_variants(algo: str) -> list[str]:
     """The registered algorithms that ``--algo`` may put in place of ``algo``: those the same learner runs ("update")
     on the same data (prior data, images), which differ from it in their actor (rlpd: rlpd, rlpd_flow)."""
-    want = algos.info(algo)
-    same = lambda i: (i.update, i.prior_data, i.images) == (want.update, want.prior_data, want.images)  # noqa: E731
-    return [name for name in algos.names() if same(algos.info(name))]
+    key = operator.attrgetter("update", "prior_data", "images")
+    return [name for name in algos.names() if key(algos.info(name)) == key(algos.info(algo))]
 
 
 def _validate(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapping[str, Any],
