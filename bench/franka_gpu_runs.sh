@@ -10,9 +10,11 @@
 # 40-episode evaluations run on each arm (..._eval40_<step>.json the Franka, ..._ur5e_eval40_<step>.json the UR5e).
 # rlpdflow_peg: rlpd_peg's command (demonstrations, prior data, critics, flags) with SAC Flow's actor (--algo=rlpd_flow),
 # the issue-32 comparison of the two actors at the same robot time.
-# _rt: image RLPD peg insertion in real time (--speed=1, whatever SPEED says): the learner must keep up;
-# episode/late_fraction in the metrics is the share of steps whose action reached a robot after its control period
-# (the robot held its last command).
+# _rt: image RLPD peg insertion in real time (--speed=1, whatever SPEED says) with --utd_mode=free (the robots never
+# wait for the learner: under the default hold the workers pause whenever the learner is behind the ratio, and a
+# paused worker's robot holds its command: 0.54 of steps late at 086aebf); episode/late_fraction in the metrics is
+# the share of steps whose action reached a robot after its control period (the robot held its last command), and
+# perf/utd the update-to-data ratio the learner reached.
 # The image jobs: front + wrist cameras at 64 px, 2 frames each, DrQ's encoder; the critic reads the same images and
 # proprioception (no object pose anywhere), or with _asym also the privileged state (the actor its own encoder).
 # Five runs at once share the GPU at ~75 env steps/s each, two at ~186 (H100 + 16 cores).
@@ -37,7 +39,7 @@ job() {
     rlpd_pick_images) a="experiments/rlpd_franka_pick.py $F $I --config actor_every=20";;
     rlpd_peg_images_asym) a="experiments/rlpd_franka_peg.py $F $P $I --asymmetric --config actor_every=2";;
     rlpd_pick_images_asym) a="experiments/rlpd_franka_pick.py $F $I --asymmetric --config actor_every=20";;
-    rlpd_peg_images_rt) a="experiments/rlpd_franka_peg.py ${F/--speed=${SPEED:-10}/--speed=1} $P $I --config actor_every=2";;
+    rlpd_peg_images_rt) a="experiments/rlpd_franka_peg.py ${F/--speed=${SPEED:-10}/--speed=1} $P $I --config actor_every=2 --utd_mode=free";;
     rlpd_pick_images_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I --config actor_every=20";;
   esac
   local d=runs/$name
@@ -53,9 +55,12 @@ job() {
     done
   done; wait
 }
+# DEADLINE (default 560) seconds after this script starts, whatever still runs (a training past JOB_TIMEOUT's share, an
+# evaluation) is stopped so that the archive below is written inside a 10-minute call (3 jobs' evaluations ran past it).
+( sleep "${DEADLINE:-560}"; pkill -TERM -f "unilab_jax.play" ; pkill -TERM -f "experiments/" ) & watchdog=$!
 for j in "$@"; do job $j & done
-while sleep 30; do n=$(jobs -r | wc -l); [ $n = 0 ] && break; for j in "$@"; do tail -c 200 $OUT/$j.log | tr '\n' ' ' | tail -c 110; echo; done; done
-wait
+while sleep 30; do n=$(jobs -pr | grep -vc "^$watchdog$"); [ "$n" = 0 ] && break; for j in "$@"; do tail -c 200 $OUT/$j.log | tr '\n' ' ' | tail -c 110; echo; done; done
+wait $(jobs -p | grep -v "^$watchdog$"); kill $watchdog 2>/dev/null
 # The evaluations as robot_learning.json records, and everything in one archive (at most 8 files come back from $OUT).
 python3 bench/robot_learning.py "$OUT" --out "$OUT/robot_learning.json" --commit "${COMMIT:-unknown}"
 tar czf /tmp/franka_runs.tgz -C "$OUT" . && find "$OUT" -mindepth 1 -delete && mv /tmp/franka_runs.tgz "$OUT/"
