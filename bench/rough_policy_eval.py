@@ -1,0 +1,116 @@
+"""How a walking policy trained on flat ground fares on the rough task's terrain, level by level and per terrain type
+(issue 33's diagnosis: is level 0 of the rough task as easy as the flat floor, or does something in the rough task
+itself stop a FastSAC run from ever learning to track there?).
+
+    python bench/rough_policy_eval.py --policy policies/go1_walk.onnx --levels 0 3 6 9 \\
+        --variant base= --variant no_dr=domain_randomization=False --out bench/results/local/phase3/rough_policy.json
+
+The policy is an ONNX export (``python -m unilab_jax.export --format onnx``: input ``obs [B, obs_dim]``, output the
+deterministic action) of a ``--flat`` task policy whose observation the rough task shares (Go1: 48 numbers). Per level
+and variant, ``--envs`` robots (curriculum off, every robot on that level, robot ``i`` on terrain column ``i mod
+columns``) run one episode each (``--seconds``) under the task's own command sampling; reported as the rough tasks'
+evaluation reports it (``tasks/rough.py``'s ``evaluation_numbers``: tracking and yaw-rate errors, fall rate, overall
+and per terrain type). The flat task is measured the same way as the reference. ``--variant NAME=K=V;K=V`` as in
+``bench/rough_standing_falls.py``; ``--task`` may be a flat task too (its variants then vary the flat task: e.g. the
+rough task's action latency on the flat floor, ``dr_action_delay=(0,1)``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+import numpy as np
+from rough_standing_falls import parse_variant
+
+
+def onnx_policy(path: str):
+    """``obs [B, D] -> action [B, A]`` through onnxruntime (one thread: a bench on a small machine)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    session = ort.InferenceSession(path, opts, providers=["CPUExecutionProvider"])
+    name = session.get_inputs()[0].name
+    return lambda obs: session.run(None, {name: np.asarray(obs, np.float32)})[0]
+
+
+def episode(task, tracker, policy, steps: int) -> dict:
+    """Steps ``task`` through ``tracker`` with ``policy`` until every env's first episode ended or ``steps``."""
+    obs, _ = task.reset()
+    for _ in range(steps):
+        obs = tracker.step(policy(obs)).obs
+        if tracker.done:
+            break
+    return tracker.result()
+
+
+def numbers(task_name: str, overrides: dict, level: int, policy, envs: int, seconds: float, seed: int) -> dict:
+    """The evaluation numbers of ``policy`` on ``task_name``: a rough task frozen on ``level`` (curricula off), a flat
+    one through the walking tracker (``level`` unused)."""
+    import tasks
+    from tasks.walking_metric import WalkingTracker
+
+    rough = hasattr(tasks.default_config(task_name), "terrain_curriculum")
+    task = tasks.make(task_name, envs, seed, {**overrides, "terrain_curriculum": False} if rough else overrides)
+    try:
+        if rough:
+            tracker = task.eval_tracker()  # frozen: curricula off, full command ranges
+            task.rough.levels[:] = level
+        else:
+            tracker = WalkingTracker(task)
+        return episode(task, tracker, policy, round(seconds / task.spec.ctrl_dt))
+    finally:
+        task.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--policy", required=True, help="ONNX export of a --flat policy")
+    ap.add_argument("--variant", action="append", default=[], help="NAME=K=V;K=V (repeatable)")
+    ap.add_argument("--task", default="go1_joystick_rough")
+    ap.add_argument("--flat", default="go1_joystick_flat", help="the reference task ('' to skip)")
+    ap.add_argument("--levels", type=int, nargs="+", default=[0])
+    ap.add_argument("--envs", type=int, default=70)
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args(argv)
+    if not os.path.isfile(args.policy):
+        print(f"error: --policy {args.policy!r}: no such file", file=sys.stderr)
+        return 2
+    try:
+        variants = [parse_variant(v) for v in args.variant or ["base="]]
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    policy = onnx_policy(args.policy)
+    rows = []
+    keys = ("tracking_error", "yaw_rate_error", "fall_rate")
+    for name, overrides in variants:
+        for level in args.levels:
+            t0 = time.perf_counter()
+            r = numbers(args.task, overrides, level, policy, args.envs, args.seconds, args.seed)
+            rows.append({"variant": name, "task": args.task, "level": level,
+                         "overrides": {k: repr(v) for k, v in overrides.items()}, **r,
+                         "seconds": round(time.perf_counter() - t0, 1)})
+            print(f"{name:10s} level {level}: " + ", ".join(f"{k} {r[k]:.3f}" for k in keys))
+    if args.flat:
+        r = numbers(args.flat, {}, 0, policy, args.envs, args.seconds, args.seed)
+        rows.append({"variant": "flat_reference", "task": args.flat, **r})
+        print("flat reference: " + ", ".join(f"{k} {r[k]:.3f}" for k in keys))
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    with open(args.out, "w") as f:
+        json.dump({"machine": {"host": platform.node(), "cpu": platform.processor() or platform.machine(),
+                               "cores": os.cpu_count(), "python": platform.python_version()},
+                   "policy": args.policy, "envs": args.envs, "seconds": args.seconds, "seed": args.seed,
+                   "rows": rows}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
