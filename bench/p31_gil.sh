@@ -11,6 +11,11 @@
 #   nocb      no XLA command buffers (--xla_gpu_enable_command_buffer=): the scan's steps as plain kernel launches
 #   wNpK      N workers kept off the first K cores (--pin_cpus=K)
 #   noprec    the update compiled at its first call, not while the rings fill (--precompile=off)
+#   bsync     threads waiting on the GPU sleep in the driver instead of spinning a core (XLA's CUDA context flag from
+#             TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE=blocking_sync; the default, CUDA's "auto", spins while a process
+#             has fewer GPU contexts than the machine has cores: each waiting thread holds a core the learner
+#             process's other threads, on the 3 cores the workers leave it, then lack)
+#   yield     the same with TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE=yield (spin, yielding the core between polls)
 #   c:K=V     the recipe's config field K set to V (--config=K=V), e.g. c:batch_size=4096
 #   f:F=V     the experiment flag --F=V, e.g. f:envs_per_worker=128 (after the configuration's own: it wins)
 # Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR), so runs compare like for
@@ -21,6 +26,10 @@ OUT=${OUT:-/tmp/p31_gil}; mkdir -p "$OUT"
 ROBOTS="unitree_go1" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
 head -3 "$OUT/setup.txt"
 mkdir -p /tmp/swi && echo 'import sys; sys.setswitchinterval(0.0005)' > /tmp/swi/sitecustomize.py
+# whether this jax's CUDA plugin reads the schedule variable (bsync / yield change nothing if it does not)
+plugin=$(python3 -c 'import os, jax_plugins.xla_cuda12 as p; print(os.path.dirname(p.__file__))' 2>/dev/null)
+[ -n "$plugin" ] && echo "CUDA plugin files naming TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE:" \
+  "$(grep -l TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE "$plugin"/*.so 2>/dev/null | wc -l)"
 for seed in ${SEEDS:-${SEED:-0}}; do
 for v in ${VARIANTS:-base noeval swi}; do
   run=$(echo "${v}" | tr ':=' '__')_s$seed; cache=$(mktemp -d)
@@ -28,13 +37,15 @@ for v in ${VARIANTS:-base noeval swi}; do
   [ "$v" = noeval ] && extra=(--extra=--eval_every=1000000000)
   [ "$v" = swi ] && pp=/tmp/swi:$PYTHONPATH
   xf=${XLA_FLAGS:-}; [ "$v" = nocb ] && xf="$xf --xla_gpu_enable_command_buffer="
+  sched=${TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE:-}; [ "$v" = bsync ] && sched=blocking_sync; [ "$v" = yield ] && sched=yield
   [ "$v" = u16 ] && extra=(--extra=--config=updates_per_call=16)
   [ "$v" = noprec ] && extra=(--extra=--precompile=off)
   [[ "$v" == c:* ]] && extra=(--extra=--config=${v#c:})
   [[ "$v" == f:* ]] && extra=(--extra=--${v#f:})
   [ "$v" = w15 ] && extra=(--extra=--num_workers=15 --extra=--pin_cpus=-1)
   [[ "$v" =~ ^w([0-9]+)p([0-9]+)$ ]] && extra=(--extra=--num_workers=${BASH_REMATCH[1]} --extra=--pin_cpus=${BASH_REMATCH[2]})
-  JAX_COMPILATION_CACHE_DIR=$cache XLA_FLAGS=$xf PYTHONPATH=$pp python3 bench/time_to_target.py --only fastsac_async \
+  JAX_COMPILATION_CACHE_DIR=$cache XLA_FLAGS=$xf PYTHONPATH=$pp env ${sched:+TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE=$sched} \
+    python3 bench/time_to_target.py --only fastsac_async \
     --seed "$seed" --max_seconds "${MAXS:-110}" --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics_$run" \
     --out "$OUT/ttt_$run.json" "${extra[@]}" 2>&1 | grep -v -i warning | tail -2 | sed "s/^/$run: /"
   rm -rf "$cache"
