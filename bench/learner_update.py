@@ -4,6 +4,9 @@ writes JSON.
     python bench/learner_update.py --algos ppo fastsac --repeats 5 --out bench/results/learner_update_local.json
     python bench/learner_update.py --algos fastsac --recipe experiments/fastsac_go1.py --platforms jax \
         --dtypes float32 bfloat16 --out fastsac_go1.json          # on the GPU
+    python bench/learner_update.py --algos rlpd --recipe experiments/rlpd_franka_peg.py --images 64x64x12 \
+        --sizes franka --platforms jax --dtypes float32 bfloat16 --config updates_per_call=64 \
+        --config actor_every=2 --out rlpd_peg_images.json       # image RLPD's update, on the GPU
 
 PPO: one full update (GAE targets + epochs x minibatches) on a trajectory batch ([T=24, B] with the task's
 observation sizes, ``--sizes``). Off-policy algorithms: one ``update`` call (``updates_per_call`` gradient
@@ -14,7 +17,16 @@ Per row: gradient steps/s (off-policy: U per call; PPO: epochs x minibatches per
 matmul TFLOP/s: the FLOPs of every ``dot_general`` in the traced float32 update (2 x output elements x
 contracted size; scans counted ``length`` times, the larger ``cond`` branch -- TD3's delayed actor step --
 counted every step; the bf16 program multiplies the same shapes), divided by the steady time. Elementwise
-work is not counted, so this is the rate of the useful matrix work, comparable across dtypes.
+work is not counted, so this is the rate of the useful matrix work, comparable across dtypes. Convolutions
+(the image encoder's, forward and backward) are counted the same way apart from the matmuls (2 x output
+elements x input features x kernel window: ``conv_gflop_per_call``, ``conv_tflops_per_s``; an input gradient
+is a convolution over the zero-padded cotangent and counts the padding: 31^2 / 29^2 of the true work on the
+second 64 px layer).
+
+``--images HxWxC``: the off-policy update on a task with uint8 images of that shape (``image`` and ``next_image``
+in the batch, random pixels; SAC, RLPD, SAC Flow): the image learner of ``algos/offpolicy/image_obs.py`` with the
+config's encoder (the defaults are DrQ's, which the Franka image jobs run: ``bench/franka_gpu_runs.sh``).
+``--sizes franka``: those jobs' observation sizes (12 robots).
 
 ``--dtypes``: the JAX learners' ``compute_dtype`` (off-policy: the config field; PPO, which has no such
 option, is traced inside ``xp.compute_dtype`` to show what it would give).
@@ -41,15 +53,25 @@ from unilab_jax import algos  # noqa: E402
 from unilab_jax.config import apply_overrides, parse_overrides  # noqa: E402
 
 # Observation sizes (actor, privileged critic, actions) of the locomotion tasks, as their TaskSpecs give them.
-SIZES = {"go1": (48, 123, 12), "go2": (49, 52, 12), "g1": (58, 66, 15)}
+SIZES = {"go1": (48, 123, 12), "go2": (49, 52, 12), "g1": (58, 66, 15),
+         # The Franka image jobs (tasks/robot.py): proprioception 13 + 2 arm kinds + 12 robot ids; the critic + 1.
+         "franka": (27, 28, 7)}
 SPEC = TaskSpec(name="go1_sizes", obs_dim=48, critic_obs_dim=123, action_dim=12, episode_length=1000, ctrl_dt=0.02,
                 reward_terms=("r",))
 
 
-def _spec(sizes: str) -> TaskSpec:
+def _spec(sizes: str, image_shape: tuple[int, ...] = ()) -> TaskSpec:
     obs, critic, act = SIZES[sizes]
     return TaskSpec(name=f"{sizes}_sizes", obs_dim=obs, critic_obs_dim=critic, action_dim=act, episode_length=1000,
-                    ctrl_dt=0.02, reward_terms=("r",))
+                    ctrl_dt=0.02, reward_terms=("r",), image_shape=image_shape)
+
+
+def _image_shape(text: str) -> tuple[int, int, int]:
+    """``"64x64x12"`` -> ``(64, 64, 12)``."""
+    parts = text.lower().split("x")
+    if len(parts) != 3 or not all(p.isdigit() and int(p) > 0 for p in parts):
+        raise argparse.ArgumentTypeError(f"--images must be HxWxC with positive integers (e.g. 64x64x12), got {text!r}")
+    return tuple(int(p) for p in parts)
 
 
 def _trajectory_batch(rng: np.random.Generator, t: int, b: int, s: TaskSpec = SPEC) -> dict[str, np.ndarray]:
@@ -65,9 +87,11 @@ def _trajectory_batch(rng: np.random.Generator, t: int, b: int, s: TaskSpec = SP
 
 
 def _replay_batch(rng: np.random.Generator, u: int, b: int, s: TaskSpec = SPEC) -> dict[str, np.ndarray]:
+    """A replay batch ``[u, b, ...]`` of random transitions, with random uint8 images where ``s`` has them."""
     a = s.action_dim
     f = np.float32
-    return {"obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
+    images = {k: rng.integers(0, 256, (u, b, *s.image_shape), dtype=np.uint8) for k in ("image", "next_image")}
+    return {**(images if s.image_shape else {}), "obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
             "critic_obs": rng.normal(size=(u, b, s.critic_obs_dim)).astype(f),
             "action": np.tanh(rng.normal(size=(u, b, a))).astype(f), "reward": (rng.random((u, b)) * 0.02).astype(f),
             "next_obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
@@ -99,23 +123,30 @@ def _subjaxprs(value):
             yield from _subjaxprs(v)
 
 
-def jaxpr_matmul_flops(jaxpr) -> float:
-    """FLOPs of the ``dot_general`` equations of ``jaxpr``: 2 x output elements x contracted size; a scan's
+def jaxpr_flops(jaxpr) -> np.ndarray:
+    """FLOPs ``[matmul, conv]`` of the ``dot_general`` and ``conv_general_dilated`` equations of ``jaxpr``:
+    2 x output elements x contracted size (a convolution's: the kernel's input features x window); a scan's
     body counts ``length`` times, a ``cond`` its most expensive branch, other sub-jaxprs (pjit, custom
     derivatives, remat) once."""
-    total = 0.0
+    total = np.zeros(2)
     for eqn in jaxpr.eqns:
         name = eqn.primitive.name
+        out = float(np.prod(eqn.outvars[0].aval.shape)) if eqn.outvars else 0.0
         if name == "dot_general":
             (lhs_contract, _), _ = eqn.params["dimension_numbers"]
             lhs = eqn.invars[0].aval.shape
-            total += 2.0 * float(np.prod(eqn.outvars[0].aval.shape)) * float(np.prod([lhs[d] for d in lhs_contract]))
+            total[0] += 2.0 * out * float(np.prod([lhs[d] for d in lhs_contract]))
             continue
-        subs = [jaxpr_matmul_flops(j) for v in eqn.params.values() for j in _subjaxprs(v)]
+        if name == "conv_general_dilated":
+            rhs_spec = eqn.params["dimension_numbers"].rhs_spec  # (out features, in features, *window)
+            rhs = eqn.invars[1].aval.shape
+            total[1] += 2.0 * out * float(np.prod([rhs[d] for d in rhs_spec[1:]]))
+            continue
+        subs = [jaxpr_flops(j) for v in eqn.params.values() for j in _subjaxprs(v)]
         if not subs:
             continue
         if name == "cond":
-            total += max(subs)
+            total += max(subs, key=lambda f: f.sum())
         elif name == "scan":
             total += eqn.params["length"] * sum(subs)
         else:
@@ -123,16 +154,16 @@ def jaxpr_matmul_flops(jaxpr) -> float:
     return total
 
 
-def update_flops(fn, *args) -> float:
-    """Matmul FLOPs of one call ``fn(*args)`` (traced, not run)."""
+def update_flops(fn, *args) -> np.ndarray:
+    """``[matmul, conv]`` FLOPs of one call ``fn(*args)`` (traced, not run)."""
     import jax
 
-    return jaxpr_matmul_flops(jax.make_jaxpr(fn)(*args).jaxpr)
+    return jaxpr_flops(jax.make_jaxpr(fn)(*args).jaxpr)
 
 
 def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config, profile_dir: str = "",
             spec: TaskSpec = SPEC, dtype: str = "float32") -> dict[str, float]:
-    """First-call and steady seconds of ``learner.update`` and, on JAX, its matmul FLOPs. ``dtype`` is the
+    """First-call and steady seconds of ``learner.update`` and, on JAX, its matmul and conv FLOPs. ``dtype`` is the
     compute dtype: off-policy configs carry it; PPO's update is traced inside ``xp.compute_dtype``."""
     import contextlib
     import dataclasses
@@ -152,7 +183,7 @@ def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config,
     learner = algos.get(algo).make_learner(platform_name, config, spec)
     state = learner.init(xp.random.key(0))
     batch = {k: xp.from_numpy(v) for k, v in batch_np.items()}
-    # The float32 program's matmul FLOPs (the bf16 one multiplies the same shapes).
+    # The float32 program's matmul and conv FLOPs (the bf16 one multiplies the same shapes).
     flops = update_flops(learner._update, state, batch) if platform_name == "jax" else None
     with scope:  # the first call traces the update
         t0 = time.perf_counter()
@@ -173,9 +204,11 @@ def measure(algo: str, platform_name: str, batch_np: dict, repeats: int, config,
                 state, metrics = learner.update(state, batch)
             _sync(platform_name, (state, metrics))
     steady = float(np.median(times))
-    return {"first_call_s": first, "steady_s": steady, "repeats": repeats, "matmul_gflop_per_call":
-            flops / 1e9 if flops is not None else None,
-            "matmul_tflops_per_s": flops / steady / 1e12 if flops is not None else None}
+    matmul, conv = flops if flops is not None else (None, None)
+    per_call = {"matmul": matmul, "conv": conv}
+    return {"first_call_s": first, "steady_s": steady, "repeats": repeats,
+            **{f"{k}_gflop_per_call": v / 1e9 if v is not None else None for k, v in per_call.items()},
+            **{f"{k}_tflops_per_s": v / steady / 1e12 if v is not None else None for k, v in per_call.items()}}
 
 
 def _recipe(path: str) -> dict:
@@ -192,6 +225,8 @@ def main() -> None:
     ap.add_argument("--dtypes", nargs="+", default=["float32"], choices=["float32", "bfloat16"],
                     help="JAX compute dtypes to measure (MLX: float32 only)")
     ap.add_argument("--sizes", default="go1", choices=sorted(SIZES), help="task observation / action sizes")
+    ap.add_argument("--images", type=_image_shape, default=(), metavar="HxWxC",
+                    help="off-policy: a task with uint8 images of this shape (e.g. 64x64x12: 2 cameras x 2 frames)")
     ap.add_argument("--ppo_envs", type=int, default=1024, help="B of the PPO batch [24, B]")
     ap.add_argument("--offpolicy_batch", type=int, default=None, help="off-policy batch size (default: the "
                     "recipe's with --recipe, else 4096); a recipe's own batch_size wins over it")
@@ -205,7 +240,13 @@ def main() -> None:
     ap.add_argument("--out", default=os.path.join(REPO, "bench", "results", "learner_update_local.json"))
     args = ap.parse_args()
     recipe = {**(_recipe(args.recipe) if args.recipe else {}), **parse_overrides(args.config)}
-    spec = _spec(args.sizes)
+    spec = _spec(args.sizes, args.images)
+    if args.images:
+        from unilab_jax.algos import contract
+
+        no_images = [a for a in args.algos if not contract.hooks(algos.get(a)).images]
+        if no_images:
+            ap.error(f"--images: {', '.join(no_images)} learn no images (sac, rlpd, sacflow, rlpd_flow do)")
     rng = np.random.default_rng(0)
     rows = []
     for algo in args.algos:
@@ -227,10 +268,13 @@ def main() -> None:
                 result["gradient_steps_per_s"] = steps / result["steady_s"]
                 rows.append({"algo": algo, "platform": plat, "dtype": dtype, "sizes": args.sizes, "batch": shape,
                              "gradient_steps_per_call": steps, **result})
-                tf = result["matmul_tflops_per_s"]
+                if args.images:
+                    rows[-1]["images"] = "x".join(map(str, args.images))
+                tf, tc = result["matmul_tflops_per_s"], result["conv_tflops_per_s"]
                 print(f"{algo:9s} {plat:4s} {dtype:8s} {shape:48s} first {result['first_call_s']:7.2f} s  "
                       f"steady {result['steady_s'] * 1e3:9.1f} ms  {result['gradient_steps_per_s']:8.1f} grad steps/s"
-                      + (f"  {tf:6.1f} matmul TFLOP/s" if tf is not None else ""), flush=True)
+                      + (f"  {tf:6.1f} matmul TFLOP/s" if tf is not None else "")
+                      + (f"  {tc:6.1f} conv TFLOP/s" if tc else ""), flush=True)
     import jax
 
     machine = {"hostname": platform.node(), "date": datetime.datetime.now(datetime.timezone.utc).isoformat(),

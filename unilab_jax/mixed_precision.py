@@ -13,6 +13,23 @@
   XLA program of ``_ln_bwd``; shapes the kernel does not take (``h`` of rank other than 2 or 3, parameters
   that vary along the rows, a width that is not a power of two on the GPU) keep the XLA backward.
 
+* ``conv2d(x, w, stride)``: the shim's VALID NHWC convolution with bf16 operands and a bf16 result (float32
+  accumulation inside the convolution), returned as float32. Its two backward convolutions (input and weight
+  gradients) take the bf16 cotangent and the saved bf16 operands and also write bf16; the input gradient comes back
+  in ``x``'s dtype, the weight gradient in float32 (rounded to bf16 once, after a float32 accumulation over the
+  batch and the output pixels: about 3 significant decimal digits, like every other bf16 result here).
+
+Why a bf16 result and no ``preferred_element_type=float32``, unlike ``matmul``: XLA's GPU compiler takes mixed
+precision (bf16 operands, float32 result) for dots only; a convolution with bf16 operands and a float32 result is
+rewritten to a float32 convolution (its ``ConvBfloat16Support`` refuses mixed convolutions, and
+``FloatNormalization`` then converts the operands up), so it would run in TF32 as before. A bf16 x bf16 -> bf16
+convolution stays bf16 through XLA to cuDNN, which accumulates bf16 convolutions in float32. The encoder's next
+step is the bias and the ReLU, then the next convolution rounds to bf16 anyway, so the bf16 result costs one
+rounding. And no ``custom_vjp`` is needed: with a bf16 result, autodiff's transpose rules already give bf16
+operands and bf16 results for both backward convolutions (the float32 upcast a ``custom_vjp`` would avoid
+comes only with ``preferred_element_type=float32``); ``tests/algos/test_compute_dtype.py`` checks the lowered
+program's convolutions, forward and backward.
+
 Between two LayerNorm layers of a network, the activations then travel in bf16 forward and backward,
 which halves the memory traffic of the elementwise work around each matmul: the work that bounds the
 critic's update on a GPU (docs/perf/learner_scaling.md).
@@ -86,6 +103,14 @@ def _matmul_bwd(out_dtype: Any, res: tuple, g: Any) -> tuple[Any, Any]:
 
 
 matmul.defvjp(_matmul_fwd, _matmul_bwd)
+
+
+def conv2d(x: Any, w: Any, stride: int) -> Any:
+    """VALID NHWC/HWIO cross-correlation of ``x`` and ``w`` rounded to bf16, a bf16 result returned as float32
+    (the shim's ``conv2d`` under ``compute_dtype("bfloat16")``; backward precision in the module docstring)."""
+    y = jax.lax.conv_general_dilated(x.astype(BF16), w.astype(BF16), (stride, stride), "VALID",
+                                     dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    return y.astype(F32)
 
 
 def _stats(x: Any) -> tuple[Any, Any]:

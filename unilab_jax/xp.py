@@ -27,8 +27,9 @@ its array library and adds the few things the standard lacks, with the same mean
   last in a thread that ran backend work, then join the thread;
 * network layers: ``activation(name, x)``, ``layer_norm(x, g, o)``, ``dense(x, w, b, g, o, activation)``;
 * jax only: ``with xp.compute_dtype("bfloat16"):`` makes ``xp.matmul`` of float32 arrays traced in that
-  block multiply in bfloat16 with float32 accumulation and float32 results (forward and backward), and
-  ``dense`` with LayerNorm and ReLU keep its activations in bf16 between matmuls (float32 statistics), so
+  block multiply in bfloat16 with float32 accumulation and float32 results (forward and backward),
+  ``conv2d`` convolve bf16 operands into bf16 results (returned as float32; the backward convolutions in bf16
+  too), and ``dense`` with LayerNorm and ReLU keep its activations in bf16 between matmuls (float32 statistics), so
   norms, softmax, losses and the optimizer stay float32 (``learner_jax``'s ``compute_dtype``;
   ``unilab_jax.mixed_precision``).
 
@@ -340,8 +341,8 @@ class JaxBackend(Backend):
     @contextlib.contextmanager
     def compute_dtype(self, name: str) -> Iterator[None]:
         """Within the block (this thread, at trace time), ``matmul`` of two float32 arrays of rank >= 2
-        multiplies in ``name`` ("bfloat16") with float32 accumulation and result; "float32" changes
-        nothing (the plain ``jnp.matmul``)."""
+        multiplies in ``name`` ("bfloat16") with float32 accumulation and result, and ``conv2d`` convolves in
+        bf16 (``mixed_precision.conv2d``); "float32" changes nothing (the plain ``jnp.matmul`` and convolution)."""
         if name not in COMPUTE_DTYPES:
             raise ValueError(f"compute_dtype must be one of {COMPUTE_DTYPES}, got {name!r}")
         previous = getattr(self._local, "low", False)
@@ -400,6 +401,8 @@ class JaxBackend(Backend):
         return self._jax.lax.stop_gradient(x)
 
     def conv2d(self, x: Any, w: Any, stride: int = 1) -> Any:
+        if self._low(x, w):
+            return self._mp.conv2d(x, w, stride)
         return self._jax.lax.conv_general_dilated(x, w, (stride, stride), "VALID",
                                                   dimension_numbers=("NHWC", "HWIO", "NHWC"))
 

@@ -9,6 +9,7 @@ check the numerics the GPU runs, up to summation order.
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -233,6 +234,60 @@ def test_layer_norm_critic_keeps_bf16_activations_between_matmuls():
     g32 = jax.grad(loss)(params, x)
     flat = lambda t: jnp.concatenate([jnp.ravel(a) for a in jax.tree_util.tree_leaves(t)])
     assert 0.0 < float(jnp.linalg.norm(flat(g16) - flat(g32)) / jnp.linalg.norm(flat(g32))) < 2e-2
+
+
+def _conv_types(hlo: str) -> list[tuple[str, str, str]]:
+    """(lhs, rhs, result) element types of every ``stablehlo.convolution`` in a lowered program."""
+    sig = re.compile(r"stablehlo\.convolution.*: \(tensor<[^>]*x(\w+)>, tensor<[^>]*x(\w+)>\) -> tensor<[^>]*x(\w+)>")
+    return [m.groups() for m in map(sig.search, hlo.splitlines()) if m]
+
+
+def test_encoder_convolutions_lower_to_bf16_forward_and_backward():
+    """The image encoder's parameter gradient under bf16: every convolution of the lowered program, the forward
+    ones and both backward ones (input and weight gradients), takes bf16 operands and writes bf16 (XLA's GPU
+    compiler would turn a bf16 x bf16 -> float32 convolution back into a float32 one); under float32 all are
+    float32. Two layers: 2 forward, 2 weight-gradient and 1 input-gradient convolutions (the image gets none)."""
+    from unilab_jax.core import pixels
+
+    params = pixels.encoder_init(jax.random.PRNGKey(0), (16, 16, 12), (8, 8), (2, 1), 10, XP)
+    image = jnp.asarray(np.random.default_rng(0).integers(0, 256, (4, 16, 16, 12)), jnp.uint8)
+
+    def loss(params, image):
+        return jnp.sum(pixels.encode(params, image, (2, 1)) ** 2)
+
+    with XP.compute_dtype("bfloat16"):
+        text16 = jax.jit(jax.grad(loss)).lower(params, image).as_text()
+    text32 = jax.jit(jax.grad(loss)).lower(params, image).as_text()
+    assert _conv_types(text16) == [("bf16", "bf16", "bf16")] * 5
+    assert _conv_types(text32) == [("f32", "f32", "f32")] * 5
+
+
+@pytest.mark.parametrize("stride", [1, 2])
+def test_conv2d_within_bf16_rounding_of_float32(stride):
+    """``conv2d`` under bf16 against the float32 convolution, values and both gradients, elementwise: each is a
+    sum of products of two bf16-rounded factors (relative error <= 2u + u^2 each, u = 2^-8 bf16's unit roundoff),
+    accumulated in float32 and rounded to bf16 once (<= u), so |bf16 - float32| <= (3u + 4u^2 + K 2^-23) S, with
+    S the same sum over absolute values and K its number of terms. Results and gradients are float32; outside the
+    block the plain float32 convolution."""
+    rng = np.random.default_rng(2)
+    n = (9 - 3) // stride + 1  # output pixels per side
+    x, w, g = (jnp.asarray(rng.normal(size=s), jnp.float32) for s in ((4, 9, 9, 12), (3, 3, 12, 8), (4, n, n, 8)))
+    conv32 = lambda a, b: jax.lax.conv_general_dilated(a, b, (stride, stride), "VALID",
+                                                       dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    with XP.compute_dtype("bfloat16"):
+        y16, vjp16 = jax.vjp(lambda a, b: XP.conv2d(a, b, stride), x, w)
+    dx16, dw16 = vjp16(g)
+    y32, vjp32 = jax.vjp(conv32, x, w)
+    bounds_of = jax.vjp(conv32, jnp.abs(x), jnp.abs(w))
+    terms = (9 * 12, 8 * 9, int(np.prod(g.shape[:3])))  # K of y, dx (at most: Cout x window), dw
+    u = 2.0 ** -8
+    for got, want, s, k in zip((y16, dx16, dw16), (y32, *vjp32(g)), (bounds_of[0], *bounds_of[1](jnp.abs(g))), terms,
+                               strict=True):
+        assert got.dtype == jnp.float32
+        err = np.abs(np.asarray(got, np.float64) - np.asarray(want, np.float64))
+        assert np.all(err <= (3 * u + 4 * u * u + k * 2.0 ** -23) * np.asarray(s, np.float64) + 1e-30)
+        assert err.max() > 0  # the bf16 program ran
+    np.testing.assert_array_equal(np.asarray(XP.conv2d(x, w, stride)), np.asarray(conv32(x, w)))
 
 
 @pytest.mark.parametrize("name", ["fastsac", "flashsac"])
