@@ -58,6 +58,11 @@ class RoughConfig:
     terrain_obstacle_height: tuple[float, float] = (0.05, 0.25)
     max_init_level: int = 4
     terrain_curriculum: bool = True
+    # the heightfield's contact solref; () keeps the floor plane's (0.02, 1). A foot that sinks deeper than its
+    # collision sphere's radius meets the side faces of the heightfield's prisms (horizontal contact normals on flat
+    # ground: docs/TERRAIN.md); the stiffer contact (time constant 0.01 s, >= 2 physics steps of every task here)
+    # makes that rarer
+    terrain_solref: tuple[float, ...] = (0.01, 1.0)
     spawn_radius: float = 0.05  # metres around each foot whose highest ground sets the spawn height
     perceptive: bool = False  # True: the actor sees the height scan too (the critic always does)
     scan_shape: tuple[int, int] = (17, 11)
@@ -93,6 +98,8 @@ class TerrainState:
         c = config
         if not 0 <= c.max_init_level < c.terrain_levels:
             raise ValueError(f"max_init_level {c.max_init_level} must lie in [0, terrain_levels)")
+        if len(c.terrain_solref) not in (0, 2):
+            raise ValueError(f"terrain_solref must be () or (timeconst, dampratio), got {c.terrain_solref}")
         self.config, self.num_envs = c, num_envs
         self.terrain = terrain.build(terrain_config(c))
         self.sampler = self.terrain.sampler()
@@ -118,6 +125,8 @@ class TerrainState:
 
     def add_to_spec(self, spec: Any) -> None:
         terrain.add_to_spec(spec, self.terrain)
+        if self.config.terrain_solref:
+            spec.geom("floor").solref = list(self.config.terrain_solref)
 
     def origins(self, idx: np.ndarray) -> np.ndarray:
         """[n, 3] the cell origins of envs ``idx``."""
