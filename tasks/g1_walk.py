@@ -132,6 +132,10 @@ class G1Config(walking.WalkingConfig):
     dr_floor_friction: tuple[float, float] = (0.4, 1.0)
     dr_mass_scale: tuple[float, float] = (0.9, 1.1)
     dr_torso_com: float = 0.03
+    # > 0: each of the 8 sole contact spheres gets this radius (metres), its centre raised by the difference, so its
+    # lowest point (a plane's contact) stays where the model's 5 mm sphere had it; the rough task's 2 cm keep the
+    # soles from sinking past their radius into a heightfield (docs/TERRAIN.md)
+    sole_radius: float = 0.0
 
 
 @base.with_reward_scales(REWARD_SCALES)
@@ -150,6 +154,11 @@ def build_spec(config: G1Config) -> mujoco.MjSpec:
         g for b in FOOT_BODIES for g in spec.body(b).geoms if g.type == mujoco.mjtGeom.mjGEOM_SPHERE])
     if len(feet) != 8:
         raise ValueError(f"expected 4 contact spheres under each ankle-roll link, found {len(feet)}")
+    if config.sole_radius > 0:
+        for g in feet:
+            lift = config.sole_radius - g.size[0]
+            g.size = [config.sole_radius, 0.0, 0.0]
+            g.pos = [g.pos[0], g.pos[1], g.pos[2] + lift]
     for s in list(spec.sensors):
         spec.delete(s)
     floor = spec.geom("floor")

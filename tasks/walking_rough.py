@@ -54,6 +54,7 @@ class G1RoughConfig(G1WalkConfig, rough.RoughConfig):
     terrain_obstacle_height: tuple[float, float] = (0.02, 0.12)
     dr_motor_strength: tuple[float, float] = (0.9, 1.1)
     dr_action_delay: tuple[int, int] = (0, 1)
+    sole_radius: float = 0.02  # the 5 mm sole spheres sank past their radius into the heightfield
 
 
 class WalkingRough(rough.RoughTask):
