@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 31 on the 1-GPU machine: where the learner process's host time goes, per thread, in-run (py-spy;
-# docs/perf/learner_scaling.md section 11).
+# docs/perf/learner_scaling.md section 13).
 # Runs FastSAC Go1 (fastsac_async) as bench/p31_gil.sh's base variant for MAXS seconds (--no_stop_at_target, an empty
 # compilation cache) and samples the LEARNER process: the experiment script's own process, which
 # bench/time_to_target.py starts (its rollout workers and its evaluation process are spawned children of it, run
@@ -20,7 +20,7 @@
 # $OUT/summary_native.json (bench/pyspy_summary.py) and prints both summaries.
 #   COMMIT=<c> bash bench/p31_pyspy.sh                        # on the GPU machine, .devr carried (bench/device_bundle.sh)
 # On a CPU machine without the bundle (SETUP=0; EXTRA: flags for bench/time_to_target.py), as validated on the dev VM
-# (tiny networks, so the call rate is like the GPU's; docs/perf/learner_scaling.md section 11):
+# (tiny networks, so the call rate is like the GPU's; docs/perf/learner_scaling.md section 13):
 #   SETUP=0 PYTHON=.venv/bin/python MAXS=100 T1=45 DUR_PY=20 DUR=15 EXTRA="--num_workers 1 --envs_per_worker 32
 #     --eval_every 100000 --eval_envs 8 --extra=--config=batch_size=64 --extra=--config=utd=1.0
 #     --extra=--config=learning_starts=2048 --extra=--config=critic_hidden=(16,16) --extra=--config=actor_hidden=(16,16)
