@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from script_helpers import run_in_process
 
+from unilab_jax.apps.play import main as play_main
 from unilab_jax.runtime.replay_store import ReplayStore
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -97,7 +98,7 @@ def test_bad_flags_exit_2_before_anything_starts(tmp_path, script, args, message
     assert message in out.stderr and "Traceback" not in out.stderr
 
 
-def test_rlpd_improves_on_its_first_evaluation(tmp_path):
+def test_rlpd_improves_on_its_first_evaluation(tmp_path, capsys):
     """The cheapest learning configuration: state-based peg insertion (``--observation=state``) with the dense
     reward and the rotation locked, three robots at speed 50 (one trains, two evaluate every 300 steps while it
     does), 900 env steps, utd 8.
@@ -121,19 +122,20 @@ def test_rlpd_improves_on_its_first_evaluation(tmp_path):
     evals = [(r["step"], r["eval/return"]) for r in evals if "eval/return" in r]
     assert len(evals) >= 3 and evals[0][0] <= 400, evals
     # The run's robot servers are gone with it: playing its policy needs other robots, e.g. in-process ones.
-    play = [sys.executable, "-m", "unilab_jax.play", f"--logdir={logdir}"]
-    gone = subprocess.run([*play, "--episodes=2", "--task_config=connect_timeout_s=1"], cwd=ROOT, capture_output=True,
-                          text=True, timeout=120)
-    assert gone.returncode == 2 and "robots wanted, 0 free" in gone.stderr, gone.stderr[-2000:]
+    # (``python -m unilab_jax.play``'s main in this process: three interpreters' imports saved)
+    play = [f"--logdir={logdir}"]
+    capsys.readouterr()
+    assert play_main([*play, "--episodes=2", "--task_config=connect_timeout_s=1"]) == 2
+    assert "robots wanted, 0 free" in capsys.readouterr().err
     steps = sorted(int(n) for n in os.listdir(logdir / "checkpoints") if n.isdigit())
     assert steps[0] <= 400 and steps[-1] >= 900, steps
     returns = []
     for step in (steps[0], steps[-1]):
-        local = subprocess.run([*play, f"--checkpoint={step}", "--episodes=8", "--seed=1", "--task_config=robots=()",
-                                "--task_config=dense_reward=true"], cwd=ROOT, capture_output=True, text=True,
-                               timeout=120)
-        assert local.returncode == 0, local.stderr[-2000:]
-        stats = json.loads(local.stdout)
+        code = play_main([*play, f"--checkpoint={step}", "--episodes=8", "--seed=1", "--task_config=robots=()",
+                          "--task_config=dense_reward=true"])
+        local = capsys.readouterr()
+        assert code == 0, local.err[-2000:]
+        stats = json.loads(local.out)
         assert stats["episodes"] == 8 and 0.0 <= stats["success_rate"] <= 1.0 and np.isfinite(stats["return"])
         returns.append(stats["return"])
     print("in-run evaluations:", evals, "first and last checkpoint on 8 episodes:", returns)
