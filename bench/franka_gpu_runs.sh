@@ -5,7 +5,9 @@
 # (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 360 in a 10-minute call: 400 ran past 560 s)
 # JOB = rlpd_peg_sN | rlpdflow_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
 #       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN | rlpd_pick_images_pair_sN
-#       | rlpd_peg_images_rt_sN; SPEED (default 10) sets --speed.
+#       | rlpd_peg_images_rt_sN; SPEED (default 10) sets --speed, TOTAL (default 36000: 60 robot-minutes at 10 Hz)
+#       --total_steps (rlpdflow_peg's update is ~2x RLPD's on the CPU: TOTAL=18000 compares the two at 30 robot-minutes
+#       inside one call).
 # _pair: 6 Franka + 6 UR5e robots alternating in the inventory (both kinds train and evaluate), one policy; its
 # 40-episode evaluations run on each arm (..._eval40_<step>.json the Franka, ..._ur5e_eval40_<step>.json the UR5e).
 # rlpdflow_peg: rlpd_peg's command (demonstrations, prior data, critics, flags) with SAC Flow's actor (--algo=rlpd_flow),
@@ -20,7 +22,7 @@
 # Five runs at once share the GPU at ~75 env steps/s each, two at ~186 (H100 + 16 cores).
 R=$(printf 'sim:franka_emika_panda,%.0s' $(seq 12)); R=${R%,}
 RP=$(printf 'sim:franka_emika_panda,sim:universal_robots_ur5e,%.0s' $(seq 6)); RP=${RP%,}
-F="--robots=$R --num_workers=8 --eval_envs=4 --eval_every=3000 --speed=${SPEED:-10} --total_steps=36000 --config utd=20 --config updates_per_call=64 --config publish_every=64"
+F="--robots=$R --num_workers=8 --eval_envs=4 --eval_every=3000 --speed=${SPEED:-10} --total_steps=${TOTAL:-36000} --config utd=20 --config updates_per_call=64 --config publish_every=64"
 P="--dense_reward --task_config=lock_rotation=true --config init_alpha=0.01 --config utd=10"
 S="--observation=state"
 RLPD_PEG="experiments/rlpd_franka_peg.py $F $P $S --config actor_every=2"
