@@ -20,12 +20,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 
 import numpy as np
-from rough_standing_falls import parse_variant
+from machine import host_info
+from rough_standing_falls import is_rough, parse_variant
 
 
 def onnx_policy(path: str):
@@ -55,7 +55,7 @@ def numbers(task_name: str, overrides: dict, level: int, policy, envs: int, seco
     import tasks
     from tasks.walking_metric import WalkingTracker
 
-    rough = hasattr(tasks.default_config(task_name), "terrain_curriculum")
+    rough = is_rough(task_name)
     task = tasks.make(task_name, envs, seed, {**overrides, "terrain_curriculum": False} if rough else overrides)
     try:
         if rough:
@@ -105,10 +105,8 @@ def main(argv: list[str] | None = None) -> int:
         print("flat reference: " + ", ".join(f"{k} {r[k]:.3f}" for k in keys))
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:
-        json.dump({"machine": {"host": platform.node(), "cpu": platform.processor() or platform.machine(),
-                               "cores": os.cpu_count(), "python": platform.python_version()},
-                   "policy": args.policy, "envs": args.envs, "seconds": args.seconds, "seed": args.seed,
-                   "rows": rows}, f, indent=1)
+        json.dump({"machine": host_info(), "policy": args.policy, "envs": args.envs, "seconds": args.seconds,
+                   "seed": args.seed, "rows": rows}, f, indent=1)
     return 0
 
 

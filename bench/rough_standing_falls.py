@@ -15,11 +15,13 @@ import argparse
 import ast
 import json
 import os
-import platform
 import sys
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from machine import host_info  # noqa: E402
 
 
 def falls(task_name: str, overrides: dict, envs: int, steps: int, level: int | None, seed: int) -> dict:
@@ -51,6 +53,13 @@ def falls(task_name: str, overrides: dict, envs: int, steps: int, level: int | N
         close = getattr(task, "close", None)
         if close:
             close()
+
+
+def is_rough(task_name: str) -> bool:
+    """Whether ``task_name`` is a rough-terrain task (its config has a terrain curriculum)."""
+    import tasks
+
+    return hasattr(tasks.default_config(task_name), "terrain_curriculum")
 
 
 def parse_variant(spec: str) -> tuple[str, dict]:
@@ -85,11 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    import tasks
 
     rows = []
     # the curriculum off where the task has one (the flat task's variants are measured the same way)
-    common = {"terrain_curriculum": False} if hasattr(tasks.default_config(args.task), "terrain_curriculum") else {}
+    common = {"terrain_curriculum": False} if is_rough(args.task) else {}
     for name, overrides in variants:
         t0 = time.perf_counter()
         r = falls(args.task, {**common, **overrides}, args.envs, args.steps, args.level, args.seed)
@@ -102,10 +110,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'flat':12s} {r['terminations']:5d} falls, {r['per_1000_env_steps']:.2f} per 1000 env steps")
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:
-        json.dump({"machine": {"host": platform.node(), "cpu": platform.processor() or platform.machine(),
-                               "cores": os.cpu_count(), "python": platform.python_version()},
-                   "envs": args.envs, "steps": args.steps, "level": args.level, "seed": args.seed, "rows": rows},
-                  f, indent=1)
+        json.dump({"machine": host_info(), "envs": args.envs, "steps": args.steps, "level": args.level,
+                   "seed": args.seed, "rows": rows}, f, indent=1)
     return 0
 
 
