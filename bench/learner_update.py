@@ -90,8 +90,9 @@ def _replay_batch(rng: np.random.Generator, u: int, b: int, s: TaskSpec = SPEC) 
     """A replay batch ``[u, b, ...]`` of random transitions, with random uint8 images where ``s`` has them."""
     a = s.action_dim
     f = np.float32
-    images = {k: rng.integers(0, 256, (u, b, *s.image_shape), dtype=np.uint8) for k in ("image", "next_image")}
-    return {**(images if s.image_shape else {}), "obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
+    images = ({k: rng.integers(0, 256, (u, b, *s.image_shape), dtype=np.uint8) for k in ("image", "next_image")}
+              if s.image_shape else {})
+    return {**images, "obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
             "critic_obs": rng.normal(size=(u, b, s.critic_obs_dim)).astype(f),
             "action": np.tanh(rng.normal(size=(u, b, a))).astype(f), "reward": (rng.random((u, b)) * 0.02).astype(f),
             "next_obs": rng.normal(size=(u, b, s.obs_dim)).astype(f),
@@ -242,11 +243,10 @@ def main() -> None:
     recipe = {**(_recipe(args.recipe) if args.recipe else {}), **parse_overrides(args.config)}
     spec = _spec(args.sizes, args.images)
     if args.images:
-        from unilab_jax.algos import contract
-
-        no_images = [a for a in args.algos if not contract.hooks(algos.get(a)).images]
+        learners = [a for a in algos.names() if algos.info(a).images]
+        no_images = [a for a in args.algos if a not in learners]
         if no_images:
-            ap.error(f"--images: {', '.join(no_images)} learn no images (sac, rlpd, sacflow, rlpd_flow do)")
+            ap.error(f"--images: {', '.join(no_images)} learn no images ({', '.join(learners)} do)")
     rng = np.random.default_rng(0)
     rows = []
     for algo in args.algos:
