@@ -155,13 +155,19 @@ def test_command_curriculum_widens_after_well_tracked_episodes_and_off_map_trunc
                                   [False, True, False, True])
 
 
+def _walker(policy_file: str):
+    """``obs -> action`` of a shipped flat-ground walker (``policies/<policy_file>``, ONNX) through onnxruntime."""
+    ort = pytest.importorskip("onnxruntime")
+    policy = ort.InferenceSession(os.path.join(os.path.dirname(__file__), "..", "..", "policies", policy_file),
+                                  providers=["CPUExecutionProvider"])
+    name = policy.get_inputs()[0].name
+    return lambda obs: policy.run(None, {name: obs.astype(np.float32)})[0]
+
+
 def _tilted_contact_fraction(overrides: dict) -> float:
     """The share of foot contacts whose normal is tilted (z < 0.99) while the shipped flat-ground walker walks 100
     control steps on a heightfield with every height zero: a plane would give none."""
-    ort = pytest.importorskip("onnxruntime")
-    policy = ort.InferenceSession(os.path.join(os.path.dirname(__file__), "..", "..", "policies", "go1_walk.onnx"),
-                                  providers=["CPUExecutionProvider"])
-    name = policy.get_inputs()[0].name
+    walker = _walker("go1_walk.onnx")
     task = tasks.make("go1_joystick_rough", 4, seed=0, overrides={
         **CLEAN, "terrain_curriculum": False, "terrain_rough_height": (0.0, 0.0), "terrain_columns": ("rough",),
         **overrides})
@@ -170,7 +176,7 @@ def _tilted_contact_fraction(overrides: dict) -> float:
         obs, _ = task.reset()
         normals = []
         for _ in range(100):
-            obs = task.step(policy.run(None, {name: obs.astype(np.float32)})[0]).obs
+            obs = task.step(walker(obs)).obs
             for i in range(task.num_envs):
                 _, data = task.render_scene(i)
                 normals.extend(data.contact.frame[: data.ncon, 2])

@@ -3,16 +3,12 @@ heights are read above the ground, the scan reaches the critic, the evaluation r
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
-from test_go1_rough import CLEAN, _deepest_contact
+from test_go1_rough import CLEAN, _deepest_contact, _walker
 
 import tasks
 from tasks import terrain
-
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 @pytest.mark.parametrize("name", ["go2_joystick_rough", "g1_walk_rough"])
@@ -78,9 +74,7 @@ def test_walking_evaluation_reports_each_terrain_type():
 def _g1_walker_falls(overrides: dict, envs: int = 4, steps: int = 150) -> int:
     """How many of ``envs`` G1s driven by the shipped flat-ground walker fall within ``steps`` control steps (3 s) on
     a heightfield with every height zero, no randomisation."""
-    ort = pytest.importorskip("onnxruntime")
-    policy = ort.InferenceSession(os.path.join(ROOT, "policies", "g1_walk.onnx"), providers=["CPUExecutionProvider"])
-    name = policy.get_inputs()[0].name
+    walker = _walker("g1_walk.onnx")
     task = tasks.make("g1_walk_rough", envs, seed=0, overrides={
         "noise_level": 0.0, "domain_randomization": False, "terrain_curriculum": False,
         "terrain_rough_height": (0.0, 0.0), "terrain_columns": ("rough",), **overrides})
@@ -89,7 +83,7 @@ def _g1_walker_falls(overrides: dict, envs: int = 4, steps: int = 150) -> int:
         obs, _ = task.reset()
         fell = np.zeros(envs, bool)
         for _ in range(steps):
-            out = task.step(policy.run(None, {name: obs.astype(np.float32)})[0])
+            out = task.step(walker(obs))
             fell |= out.terminated
             obs = out.obs
     finally:
