@@ -24,9 +24,10 @@ workers=$(( ($(nproc) - 1) / $(echo $SEEDS | wc -w) ))  # 16 cores, 3 seeds: 5 w
 fixed="--config lr_schedule=fixed --config learning_rate=${LR:-3e-4}"
 std="--config final_std=${STD:-0.3} --config schedule_steps=${SCHED:-4000000}"
 grasp="--task_config=grasp_cache=builtin --task_config=reset_press=0"
+all="$fixed $std $grasp"
 case $SETTING in
-  base) S="" ;; fixed_lr) S=$fixed ;; std) S=$std ;; grasp) S=$grasp ;; all) S="$fixed $std $grasp" ;;
-  steady) S="$fixed $std $grasp --task_config=scale_fall=${FALL:--40}" ;; custom) S="" ;;
+  base) S="" ;; fixed_lr) S=$fixed ;; std) S=$std ;; grasp) S=$grasp ;; all) S=$all ;;
+  steady) S="$all --task_config=scale_fall=${FALL:--40}" ;; custom) S="" ;;
   *) echo "SETTING must be base, fixed_lr, std, grasp, all, steady or custom"; exit 2 ;;
 esac
 common="--num_workers=$workers --envs_per_worker=${ENVS:-64} --eval_every=${EVAL_EVERY:-1000000} \
