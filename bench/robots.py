@@ -1,10 +1,16 @@
-"""Robot-server numbers: step latency over the wire, camera render time per frame, scripted-expert success.
+"""Robot-server numbers: step latency over the wire (idle and under a flood), camera render time per frame,
+scripted-expert success.
 
     MENAGERIE_ROOT=../shared/robots python bench/robots.py [--episodes 50] [--out bench/results/robots.json]
     python bench/robots.py --parts render --sizes 64 128 --out bench/results/h100/render_cameras.json   # GPU machine
 
 * ``step_ms``: wall time of ``RobotClient.step`` against a ``python -m unilab_jax.robots.serve`` process
   (Franka pick-and-place, no cameras) at speed 1 and 20 (control period 100 ms and 5 ms).
+* ``flood``: the owner's median step latency on a keyed server (unpaced Franka, loopback, one thread) idle, under a
+  flood and idle again: ``bench/flood_clients.py`` at nice 10, 200 admitted sockets asking ``health`` four at a
+  time as fast as answered plus a connection with an unknown key every 5 ms; a flooded window counts when the
+  server dropped >= 300 requests during it (on a busy machine the low-priority flood may pause). With the server's
+  ``rate_limited`` and ``denied`` counters and the flood's own counts.
 * ``render``: in a fresh interpreter with ``MUJOCO_GL`` as set, else the first working backend: per (task, arm,
   camera geometry, size) the milliseconds of one ``mujoco.Renderer`` frame of each camera (``front``, ``wrist``;
   ``update_scene`` + ``render``, 20 frames after one warm-up) and of one control step with both cameras (physics,
@@ -21,21 +27,25 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
 if REPO not in sys.path:  # bench.machine, when run as a script
     sys.path.insert(0, REPO)
 
 from bench.machine import cpu_model  # noqa: E402
+from unilab_jax.robots import keys  # noqa: E402
 from unilab_jax.robots.client import RobotClient  # noqa: E402
 from unilab_jax.robots.experts import PAIRS, evaluate_expert  # noqa: E402
 from unilab_jax.robots.gl import find_gl_backend  # noqa: E402
 
 HOLD = np.array([0.0, 0, 0, 0, 0, 0, -1.0], dtype=np.float32)
-PARTS = ("step", "render", "experts")
+PARTS = ("step", "flood", "render", "experts")
+FLOOD_WINDOWS, FLOOD_DROPS = 5, 300  # flooded windows of 80 steps; drops that show the flood was on all along
 
 _RENDER = """
 import json, sys, time
@@ -111,6 +121,63 @@ def step_latency(speed: float, steps: int) -> dict:
             "min": t.min(), "max": t.max(), "late_actions": health.late_actions, "overruns": health.overruns}
 
 
+def _median_step_ms(robot: RobotClient, n: int) -> float:
+    times = []
+    for i in range(n):
+        t = time.perf_counter()
+        step = robot.step(HOLD if i % 2 else -HOLD)
+        times.append(time.perf_counter() - t)
+        if step.terminated or step.truncated:
+            robot.reset()
+    return float(np.median(times)) * 1e3
+
+
+def flood_latency(sockets: int = 200) -> dict:
+    with tempfile.TemporaryDirectory() as d:
+        keys.new("server", d)
+        keys.new("owner", os.path.join(d, "allow"))
+        keys.new("other", os.path.join(d, "allow"))
+        server_key = keys.load_public(os.path.join(d, "server.key"))
+        public, secret = keys.load_pair(os.path.join(d, "allow", "owner.key_secret"))
+        path = os.pathsep.join([REPO, os.environ.get("PYTHONPATH", "")])
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": path}
+        cmd = [sys.executable, "-m", "unilab_jax.robots.serve", "--robot=franka", "--task=pick_place", "--port=0",
+               "--speed=inf", "--reset_s=0", "--cameras=none", f"--key={os.path.join(d, 'server.key_secret')}",
+               f"--allow={os.path.join(d, 'allow')}"]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+        try:
+            address = proc.stdout.readline().split(" on ")[1].strip()
+            with RobotClient(address, keys=keys.ClientKeys(public, secret, server_key), timeout_s=5.0,
+                             lease_s=600, heartbeat_s=0) as robot:
+                robot.reset(seed=0)
+                _median_step_ms(robot, 20)
+                idle = _median_step_ms(robot, 150)
+                flood = subprocess.Popen([sys.executable, os.path.join(HERE, "flood_clients.py"), address,
+                                          str(FLOOD_WINDOWS * 1.5), str(sockets), server_key.decode(),
+                                          os.path.join(d, "allow", "other.key_secret")],
+                                         stdout=subprocess.PIPE, text=True, env=env)
+                windows = []
+                try:
+                    time.sleep(0.5)  # its sockets connect
+                    for _ in range(FLOOD_WINDOWS):
+                        before = robot.health().limit_hits["rate_limited"]
+                        ms = _median_step_ms(robot, 80)
+                        windows.append({"median_ms": ms, "dropped": robot.health().limit_hits["rate_limited"] - before})
+                finally:
+                    flood_out = flood.communicate(timeout=60)[0].split()
+                idle_after = _median_step_ms(robot, 150)
+                hits = robot.health().limit_hits
+        finally:
+            proc.terminate()
+            proc.wait(10)
+    flooded = [w["median_ms"] for w in windows if w["dropped"] >= FLOOD_DROPS]
+    return {"sockets": sockets, "idle_ms": idle, "idle_after_ms": idle_after, "windows": windows,
+            "flooded_ms": float(np.median(flooded)) if flooded else None,
+            "flooded_over_idle": float(np.median(flooded)) / max(idle, idle_after) if flooded else None,
+            "rate_limited": hits["rate_limited"], "denied": hits["denied"],
+            "flood": dict(zip(flood_out[0::2], map(int, flood_out[1::2]), strict=True))}
+
+
 def render_times(sizes: list[int]) -> dict:
     backend = os.environ.get("MUJOCO_GL")
     if backend is None:
@@ -135,6 +202,11 @@ def main() -> None:
     result = {"machine": machine(), "commit": commit}
     if "step" in args.parts:
         result["step_ms"] = [step_latency(1.0, 20), step_latency(20.0, 90)]
+    if "flood" in args.parts:
+        result["flood"] = flood_latency()
+        f = result["flood"]
+        print(f"owner step: idle {f['idle_ms']:.2f} / {f['idle_after_ms']:.2f} ms, flooded {f['flooded_ms']} ms "
+              f"({len(f['windows'])} windows); server dropped {f['rate_limited']}, denied {f['denied']}", flush=True)
     if "render" in args.parts:
         result["render"] = render_times(args.sizes)
         for row in result["render"].get("rows", []):

@@ -1,5 +1,5 @@
 """Robot servers only their owner can move: CURVE keys and allow-lists, ownership by token and key, every bad
-serve flag and request field refused with a message, the owner's latency under a flood (issue #34)."""
+serve flag and request field refused with a message, the owner first under a flood (issue #34)."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ from unilab_jax.robots.client import RobotClient, query
 from unilab_jax.robots.interface import RobotClaimed, RobotDisconnected, RobotEstopped
 
 HOLD = np.array([0.0, 0, 0, 0, 0, 0, -1.0], dtype=np.float32)
-FLOOD = os.path.join(os.path.dirname(__file__), "flood_clients.py")
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+FLOOD = os.path.join(ROOT, "bench", "flood_clients.py")
 
 
 @pytest.fixture
@@ -184,49 +184,67 @@ def test_inventory_toml_names_server_keys_and_the_client_key(keydir, tmp_path):
         inventory.parse(str(toml))
 
 
-def _step_latency_ms(robot: RobotClient, n: int) -> float:
-    times = []
-    for i in range(n):
-        t = time.perf_counter()
-        step = robot.step(HOLD if i % 2 else -HOLD)
-        times.append(time.perf_counter() - t)
-        if step.terminated or step.truncated:
-            robot.reset()
-    return float(np.median(times)) * 1e3
+def test_the_owners_request_is_answered_before_requests_queued_ahead_of_it():
+    """The server's order, without timing: while the robot is inside a paced step (1 s at speed 0.1), another
+    client queues health requests and then the owner pipelines its next step. The owner's step is answered first,
+    so every health reply already counts it; a server answering in arrival order counts one step fewer in all."""
+    with thread_server(0.1, 0.0) as server:
+        ctx = zmq.Context()
+        owner, other = ctx.socket(zmq.DEALER), ctx.socket(zmq.DEALER)
+        try:
+            for sock in (owner, other):
+                sock.setsockopt(zmq.LINGER, 0)
+                sock.connect(server.address)
+
+            def reply(sock: zmq.Socket) -> dict:
+                assert sock.poll(10_000), "no reply within 10 s"
+                return protocol.unpack(sock.recv())
+
+            owner.send(protocol.request("claim", 1, "owner", {"lease_s": 60}))
+            token = reply(owner)["result"]["token"]
+            owner.send(protocol.request("reset", 2, "owner", {"seed": 0}, token))
+            assert reply(owner)["ok"]
+            owner.send(protocol.request("step", 3, "owner", {"action": HOLD}, token))
+            time.sleep(0.3)  # the server is inside step 3's 1 s period
+            for i in range(20):
+                other.send(protocol.request("health", 100 + i, "other"))
+            owner.send(protocol.request("step", 4, "owner", {"action": HOLD}, token))
+            assert [reply(owner)["id"] for _ in range(2)] == [3, 4]
+            health = [reply(other) for _ in range(20)]
+        finally:
+            owner.close(0)
+            other.close(0)
+            ctx.term()
+    assert [h["id"] for h in health] == list(range(100, 120))
+    assert {h["result"]["steps"] for h in health} == {2}
 
 
-def test_owner_step_latency_under_a_flood_of_health_requests_and_strangers(serve, keydir):
+def test_owner_keeps_its_robot_through_a_flood_of_health_requests_and_strangers(serve, keydir):
     """200 admitted sockets asking health four at a time as fast as they are answered, plus a connection with an
-    unknown key every 5 ms: the owner's median step latency stays within 2x of idle (unpaced robot, loopback). The
-    previous server, one request at a time whoever asked, went from 1.4 to 4.8-12.7 ms under this flood."""
+    unknown key every 5 ms (bench/flood_clients.py): every owner step is answered, the strangers are refused and the
+    flood is cut to the rate limit. The owner's latency under this flood is a benchmark
+    (``bench/robots.py --parts flood``), not a test: on a shared 2-core machine it measures the neighbours."""
     server = serve("--robot=franka", "--task=pick_place", "--port=0", "--speed=inf", "--reset_s=0",
                    "--cameras=none", f"--key={keydir / 'server.key_secret'}", f"--allow={keydir / 'allow'}",
                    env={"OMP_NUM_THREADS": "1"})
     server_key = keys.load_public(str(keydir / "server.key")).decode()
-    with RobotClient(server.address, keys=client_keys(keydir, "owner"), timeout_s=5.0, heartbeat_s=0) as robot:
+    with RobotClient(server.address, keys=client_keys(keydir, "owner"), timeout_s=5.0, lease_s=60,
+                     heartbeat_s=0) as robot:
         robot.reset(seed=0)
-        _step_latency_ms(robot, 20)
-        idle = _step_latency_ms(robot, 150)
-        flood = subprocess.Popen([sys.executable, FLOOD, server.address, "4", "200", server_key,
+        flood = subprocess.Popen([sys.executable, FLOOD, server.address, "2", "200", server_key,
                                   str(keydir / "allow" / "other.key_secret")], stdout=subprocess.PIPE, text=True,
                                  env={**os.environ, "OMP_NUM_THREADS": "1",
                                       "PYTHONPATH": os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")])})
         try:
-            # A window counts when the flood was on all along: the server dropped many requests meanwhile (the
-            # flood runs at the lowest priority, so on a busy machine it may pause).
-            deadline, during = time.monotonic() + 3.5, 0
-            while during < 300 and time.monotonic() < deadline:
-                before = robot.health().limit_hits["rate_limited"]
-                flooded = _step_latency_ms(robot, 80)
-                during = robot.health().limit_hits["rate_limited"] - before
+            steps = 0
+            while flood.poll() is None:
+                step = robot.step(HOLD if steps % 2 else -HOLD)  # RobotDisconnected after 5 s without its reply
+                steps += 1
+                if step.terminated or step.truncated:
+                    robot.reset()
         finally:
-            out = flood.communicate(timeout=30)[0]
-        idle_after = _step_latency_ms(robot, 150)
-        hits = robot.health().limit_hits
-    baseline = max(idle, idle_after)  # the machine's load may change meanwhile (CI runners are shared)
-    print(f"owner step latency: idle {idle:.2f} / {idle_after:.2f} ms, flooded {flooded:.2f} ms ({during} requests "
-          f"dropped meanwhile); flood: {out.strip()}; server: rate_limited {hits['rate_limited']}, "
-          f"denied {hits['denied']}")
-    if during < 300:
-        pytest.skip("the flood (at the lowest priority) found no spare CPU on this busy machine: nothing measured")
-    assert hits["denied"] > 0 and flooded < 2 * baseline
+            out = flood.communicate(timeout=30)[0].split()
+        health = robot.health()
+    flood_counts = dict(zip(out[0::2], map(int, out[1::2]), strict=True))
+    assert health.owner == robot.client_id and health.state != "estopped" and steps > 100
+    assert health.limit_hits["denied"] > 0 and health.limit_hits["rate_limited"] > 0 and flood_counts["replies"] > 0

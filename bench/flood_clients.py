@@ -1,6 +1,7 @@
-"""A flood of clients for the robot-server flood test: run as a process of its own.
+"""A flood of clients against a robot server (``bench/robots.py --parts flood`` and the server's flood test): run
+as a process of its own.
 
-    python tests/robots/flood_clients.py ADDRESS SECONDS SOCKETS [SERVER_KEY CLIENT_KEY_SECRET_FILE]
+    python bench/flood_clients.py ADDRESS SECONDS SOCKETS [SERVER_KEY CLIENT_KEY_SECRET_FILE]
 
 ``SOCKETS`` DEALER sockets send ``health`` requests four at a time as fast as the server answers them (and
 again after 50 ms without an answer, so dropped requests do not slow the flood); with keys, the sockets use the
@@ -78,8 +79,8 @@ def flood(address: str, seconds: float, n: int, server_key: bytes = b"", key_fil
 
 
 if __name__ == "__main__":
-    # The clients stand for other machines: on a 2-core test machine they run at a lower priority than the
-    # server and its owner, else the test measures the CPU they take rather than the server.
+    # The clients stand for other machines: on a 2-core machine they run at a lower priority than the server and
+    # its owner, else the measurement is of the CPU they take rather than of the server.
     os.nice(10)
     address, seconds, n = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
     server_key, key_file = (sys.argv[4].encode(), sys.argv[5]) if len(sys.argv) > 5 else (b"", "")
