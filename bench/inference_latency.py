@@ -39,7 +39,7 @@ for _p in (REPO, HERE, os.path.join(REPO, "experiments")):
         sys.path.insert(0, _p)
 
 import numpy as np  # noqa: E402
-from replay_store import write_json  # noqa: E402
+from machine import write_json  # noqa: E402
 from throughput import machine_info  # noqa: E402
 
 STUDENT_HISTORY = 30  # hora_cli's --history_len default

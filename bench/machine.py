@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 
@@ -20,3 +21,11 @@ def host_info() -> dict:
     """The host, CPU, core count and Python of a CPU-side record (``platform``'s view)."""
     return {"host": platform.node(), "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
             "python": platform.python_version()}
+
+
+def write_json(path: str, result: dict) -> None:
+    """Writes a benchmark's result (numpy scalars as floats), creating the folder; says where."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "w") as f:
+        json.dump(result, f, indent=2, default=float)
+    print(f"wrote {path}")

@@ -37,7 +37,8 @@ for p in (REPO, HERE):
         sys.path.insert(0, p)
 
 import numpy as np  # noqa: E402
-from replay_store import GO1, random_rows, write_json  # noqa: E402
+from machine import write_json  # noqa: E402
+from replay_store import GO1, random_rows  # noqa: E402
 
 from unilab_jax.runtime import buffers  # noqa: E402
 

@@ -27,7 +27,6 @@ machine info (``bench/throughput.py``'s) plus the disk's filesystem and the RAM 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import sys
@@ -42,6 +41,7 @@ for p in (REPO, HERE):
         sys.path.insert(0, p)
 
 import numpy as np  # noqa: E402
+from machine import write_json  # noqa: E402
 
 from unilab_jax.fields import REPLAY_FIELDS  # noqa: E402
 from unilab_jax.runtime.buffers import ReplayBuffer, transition_layout  # noqa: E402
@@ -210,14 +210,6 @@ def main(argv=None) -> dict:
            "loadavg_at_end": list(os.getloadavg()), "results": results}
     write_json(args.out, out)
     return out
-
-
-def write_json(path: str, result: dict) -> None:
-    """Writes a benchmark's result (numpy scalars as floats), creating the folder; says where."""
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    with open(path, "w") as f:
-        json.dump(result, f, indent=2, default=float)
-    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

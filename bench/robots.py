@@ -37,7 +37,7 @@ REPO = os.path.dirname(HERE)
 if REPO not in sys.path:  # bench.machine, when run as a script
     sys.path.insert(0, REPO)
 
-from bench.machine import cpu_model  # noqa: E402
+from bench.machine import cpu_model, write_json  # noqa: E402
 from unilab_jax.robots import keys  # noqa: E402
 from unilab_jax.robots.client import RobotClient  # noqa: E402
 from unilab_jax.robots.experts import PAIRS, evaluate_expert  # noqa: E402
@@ -216,9 +216,7 @@ def main() -> None:
     if "experts" in args.parts:
         result["experts"] = [evaluate_expert(task, arm, args.episodes) for task, arm in PAIRS]
     print(json.dumps(result, indent=1, default=float))
-    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(result, f, indent=1, default=float)
+    write_json(args.out, result)
 
 
 if __name__ == "__main__":

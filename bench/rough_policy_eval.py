@@ -18,13 +18,12 @@ rough task's action latency on the flat floor, ``dr_action_delay=(0,1)``).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
 
 import numpy as np
-from machine import host_info
+from machine import host_info, write_json
 from rough_standing_falls import is_rough, parse_variant
 
 
@@ -103,10 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         r = numbers(args.flat, {}, 0, policy, args.envs, args.seconds, args.seed)
         rows.append({"variant": "flat_reference", "task": args.flat, **r})
         print("flat reference: " + ", ".join(f"{k} {r[k]:.3f}" for k in keys))
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"machine": host_info(), "policy": args.policy, "envs": args.envs, "seconds": args.seconds,
-                   "seed": args.seed, "rows": rows}, f, indent=1)
+    write_json(args.out, {"machine": host_info(), "policy": args.policy, "envs": args.envs, "seconds": args.seconds,
+                          "seed": args.seed, "rows": rows})
     return 0
 
 

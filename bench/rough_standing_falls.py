@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import ast
-import json
 import os
 import sys
 import time
@@ -21,7 +20,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from machine import host_info  # noqa: E402
+from machine import host_info, write_json  # noqa: E402
 
 
 def falls(task_name: str, overrides: dict, envs: int, steps: int, level: int | None, seed: int) -> dict:
@@ -108,10 +107,8 @@ def main(argv: list[str] | None = None) -> int:
         r = falls(args.flat, {}, args.envs, args.steps, None, args.seed)
         rows.append({"variant": "flat_reference", "task": args.flat, "overrides": {}, **r})
         print(f"{'flat':12s} {r['terminations']:5d} falls, {r['per_1000_env_steps']:.2f} per 1000 env steps")
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"machine": host_info(), "envs": args.envs, "steps": args.steps, "level": args.level,
-                   "seed": args.seed, "rows": rows}, f, indent=1)
+    write_json(args.out, {"machine": host_info(), "envs": args.envs, "steps": args.steps, "level": args.level,
+                          "seed": args.seed, "rows": rows})
     return 0
 
 
