@@ -7,11 +7,14 @@ as a process of its own.
 again after 50 ms without an answer, so dropped requests do not slow the flood); with keys, the sockets use the
 admitted client key and, beside them, a new socket with an unknown random key connects every 5 ms (each one a
 refused handshake). Runs at nice 10. Prints one line ``replies N sent M attempts K`` at the end.
+
+From Python: ``launch(...)`` starts it, ``counts(its stdout)`` reads that line.
 """
 
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import time
 
@@ -76,6 +79,22 @@ def flood(address: str, seconds: float, n: int, server_key: bytes = b"", key_fil
         s.close(0)
     ctx.term()
     return replies, sent, attempts
+
+
+def launch(address: str, seconds: float, sockets: int, server_key: str = "", key_file: str = "") -> subprocess.Popen:
+    """This script as a process of its own (one BLAS thread, the checkout importable), its stdout piped."""
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    path = os.pathsep.join([repo, os.environ.get("PYTHONPATH", "")])
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": path}
+    keys = [server_key, key_file] if server_key else []
+    return subprocess.Popen([sys.executable, os.path.abspath(__file__), address, str(seconds), str(sockets), *keys],
+                            stdout=subprocess.PIPE, text=True, env=env)
+
+
+def counts(output: str) -> dict[str, int]:
+    """``replies N sent M attempts K`` (the process's last line) -> ``{"replies": N, "sent": M, "attempts": K}``."""
+    words = output.split()
+    return dict(zip(words[0::2], map(int, words[1::2]), strict=True))
 
 
 if __name__ == "__main__":

@@ -37,6 +37,7 @@ REPO = os.path.dirname(HERE)
 if REPO not in sys.path:  # bench.machine, when run as a script
     sys.path.insert(0, REPO)
 
+from bench import flood_clients  # noqa: E402
 from bench.machine import cpu_model, write_json  # noqa: E402
 from unilab_jax.robots import keys  # noqa: E402
 from unilab_jax.robots.client import RobotClient  # noqa: E402
@@ -139,12 +140,11 @@ def flood_latency(sockets: int = 200) -> dict:
         keys.new("other", os.path.join(d, "allow"))
         server_key = keys.load_public(os.path.join(d, "server.key"))
         public, secret = keys.load_pair(os.path.join(d, "allow", "owner.key_secret"))
-        path = os.pathsep.join([REPO, os.environ.get("PYTHONPATH", "")])
-        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": path}
         cmd = [sys.executable, "-m", "unilab_jax.robots.serve", "--robot=franka", "--task=pick_place", "--port=0",
                "--speed=inf", "--reset_s=0", "--cameras=none", f"--key={os.path.join(d, 'server.key_secret')}",
                f"--allow={os.path.join(d, 'allow')}"]
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                                env={**os.environ, "OMP_NUM_THREADS": "1"})
         try:
             address = proc.stdout.readline().split(" on ")[1].strip()
             with RobotClient(address, keys=keys.ClientKeys(public, secret, server_key), timeout_s=5.0,
@@ -152,10 +152,8 @@ def flood_latency(sockets: int = 200) -> dict:
                 robot.reset(seed=0)
                 _median_step_ms(robot, 20)
                 idle = _median_step_ms(robot, 150)
-                flood = subprocess.Popen([sys.executable, os.path.join(HERE, "flood_clients.py"), address,
-                                          str(FLOOD_WINDOWS * 1.5), str(sockets), server_key.decode(),
-                                          os.path.join(d, "allow", "other.key_secret")],
-                                         stdout=subprocess.PIPE, text=True, env=env)
+                flood = flood_clients.launch(address, FLOOD_WINDOWS * 1.5, sockets, server_key.decode(),
+                                             os.path.join(d, "allow", "other.key_secret"))
                 windows = []
                 try:
                     time.sleep(0.5)  # its sockets connect
@@ -164,7 +162,7 @@ def flood_latency(sockets: int = 200) -> dict:
                         ms = _median_step_ms(robot, 80)
                         windows.append({"median_ms": ms, "dropped": robot.health().limit_hits["rate_limited"] - before})
                 finally:
-                    flood_out = flood.communicate(timeout=60)[0].split()
+                    flood_out = flood.communicate(timeout=60)[0]
                 idle_after = _median_step_ms(robot, 150)
                 hits = robot.health().limit_hits
         finally:
@@ -175,7 +173,7 @@ def flood_latency(sockets: int = 200) -> dict:
             "flooded_ms": float(np.median(flooded)) if flooded else None,
             "flooded_over_idle": float(np.median(flooded)) / max(idle, idle_after) if flooded else None,
             "rate_limited": hits["rate_limited"], "denied": hits["denied"],
-            "flood": dict(zip(flood_out[0::2], map(int, flood_out[1::2]), strict=True))}
+            "flood": flood_clients.counts(flood_out)}
 
 
 def render_times(sizes: list[int]) -> dict:

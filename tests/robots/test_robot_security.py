@@ -19,7 +19,8 @@ from unilab_jax.robots.interface import RobotClaimed, RobotDisconnected, RobotEs
 
 HOLD = np.array([0.0, 0, 0, 0, 0, 0, -1.0], dtype=np.float32)
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-FLOOD = os.path.join(ROOT, "bench", "flood_clients.py")
+sys.path.insert(0, os.path.join(ROOT, "bench"))
+import flood_clients  # noqa: E402  (bench/flood_clients.py: the flood's process)
 
 
 @pytest.fixture
@@ -231,10 +232,7 @@ def test_owner_keeps_its_robot_through_a_flood_of_health_requests_and_strangers(
     with RobotClient(server.address, keys=client_keys(keydir, "owner"), timeout_s=5.0, lease_s=60,
                      heartbeat_s=0) as robot:
         robot.reset(seed=0)
-        flood = subprocess.Popen([sys.executable, FLOOD, server.address, "2", "200", server_key,
-                                  str(keydir / "allow" / "other.key_secret")], stdout=subprocess.PIPE, text=True,
-                                 env={**os.environ, "OMP_NUM_THREADS": "1",
-                                      "PYTHONPATH": os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")])})
+        flood = flood_clients.launch(server.address, 2, 200, server_key, str(keydir / "allow" / "other.key_secret"))
         try:
             steps = 0
             while flood.poll() is None:
@@ -243,8 +241,8 @@ def test_owner_keeps_its_robot_through_a_flood_of_health_requests_and_strangers(
                 if step.terminated or step.truncated:
                     robot.reset()
         finally:
-            out = flood.communicate(timeout=30)[0].split()
+            out = flood.communicate(timeout=30)[0]
         health = robot.health()
-    flood_counts = dict(zip(out[0::2], map(int, out[1::2]), strict=True))
+    flood_counts = flood_clients.counts(out)
     assert health.owner == robot.client_id and health.state != "estopped" and steps > 100
     assert health.limit_hits["denied"] > 0 and health.limit_hits["rate_limited"] > 0 and flood_counts["replies"] > 0
