@@ -11,7 +11,8 @@ written on the array-API shim):
   (``hfield_sphere``: the prisms of a sub-grid around the sphere; up to 4 contacts per foot), capsules and boxes;
   every foot here is a sphere (Go1, Go2: one per foot; G1: four per sole), and nothing else touches the ground.
 * State (``extra``, besides the action queue of ``dr_action_delay``): each env's cell (``level``, ``col``) and the
-  episode's sum of commanded planar speeds (``speed_sum``).
+  episode's commanded path (``commanded``: its displacement, ``commanded_heading``: its heading;
+  ``curriculum.advance_commanded_path``).
 * Reset: new episodes at their cell's origin plus the flat task's jitter, the base at the standing height above the
   highest ground within ``spawn_radius`` of any foot (``terrain.highest_ground``), as ``TerrainState.place``.
 * Step: heights above the ground where the CPU task reads them (Go1: foot heights; Go2 / G1: base and foot heights),
@@ -64,7 +65,7 @@ class RoughMjx:
         self.sampler = {**state.sampler, "heights": _f32(state.sampler["heights"])}
         self.origins, self.points = _f32(state.terrain.origins), _f32(state.points)
         self.feet, self.stand = _f32(template._feet), float(template._stand)
-        self.bounds, self.episode_seconds = state.bounds, state.episode_seconds
+        self.bounds, self.ctrl_dt, self.episode_length = state.bounds, state.ctrl_dt, state.episode_length
         self.spec = template.spec
         self.frozen = False
 
@@ -82,7 +83,8 @@ class RoughMjx:
         else:
             draws = jax.random.randint(key, (n,), 0, self.rough_config.max_init_level + 1, jnp.int32)
             levels, cols = curriculum.initial_cells(n, C, draws)
-        return {**extra, "level": levels, "col": cols, "speed_sum": jnp.zeros((n,))}
+        return {**extra, "level": levels, "col": cols, "commanded": jnp.zeros((n, 2)),
+                "commanded_heading": jnp.zeros((n,))}
 
     def place(self, qpos: jax.Array, extra: dict) -> jax.Array:
         qpos = qpos.at[:, :2].add(self.origins[extra["level"], extra["col"], :2])
@@ -108,20 +110,22 @@ class RoughMjx:
     def after_transition(self, before: Any, state: Any, out: mg.MjxStepOut, ended: jax.Array,
                          key: jax.Array) -> tuple[Any, mg.MjxStepOut]:
         """The episode metrics of the level each env played on, then (training) the terrain curriculum for the
-        ``ended`` envs that did not diverge, as ``TerrainState.episode_end``; the speed sums restart."""
+        ``ended`` envs that did not diverge, as ``TerrainState.episode_end``; the commanded paths restart."""
         state, out = super().after_transition(before, state, out, ended, key)
         c, e = self.rough_config, state.extra
-        speed = e["speed_sum"] + jnp.linalg.norm(before.info["command"][:, :2], axis=1)  # the step's command
+        path, heading = curriculum.advance_commanded_path(e["commanded"], e["commanded_heading"],
+                                                          before.info["command"], self.ctrl_dt)  # the step's command
         levels = e["level"]
         metrics = {"terrain_level": levels.astype(jnp.float32),
                    **{f"terrain_level_{k}": (levels == k).astype(jnp.float32) for k in range(self.num_levels)}}
         if not self.frozen and c.terrain_curriculum:
             dist = jnp.linalg.norm(state.data.qpos[:, :2] - self.origins[levels, e["col"], :2], axis=1)
-            asked = curriculum.asked_distance(speed, state.steps, self.episode_seconds)
+            asked = curriculum.asked_distance(path, state.steps, self.episode_length)
             moved = curriculum.next_levels(levels, dist, asked, c.terrain_cell_size, self.num_levels,
                                            jax.random.randint(key, levels.shape, 0, self.num_levels, jnp.int32))
             levels = jnp.where(ended & ~mg.diverged(state.data), moved, levels)
-        extra = {**e, "level": levels, "speed_sum": jnp.where(ended, 0.0, speed)}
+        extra = {**e, "level": levels, "commanded": jnp.where(ended[:, None], 0.0, path),
+                 "commanded_heading": jnp.where(ended, 0.0, heading)}
         return state._replace(extra=extra), out._replace(extras=metrics)
 
     # ---- evaluation ---------------------------------------------------------------------------------

@@ -6,9 +6,10 @@ A task composes one ``TerrainState`` (``tasks/go1_rough.py``: ``go1_joystick_rou
 * model: ``add_to_spec`` swaps the scene's floor plane for the terrain's heightfield (``tasks/terrain.py``);
 * reset: ``place`` moves new episodes to their cell's origin (plus the task's own xy jitter) at the standing
   height above the highest ground within ``spawn_radius`` of any foot, so the feet start on the surface, not in it;
-* each step: ``record_step`` sums the commanded planar speed and the velocity-tracking reward per env;
+* each step: ``record_step`` advances each env's commanded path (``curriculum.advance_commanded_path``: where a
+  robot following its commands exactly would be) and sums its velocity-tracking reward;
 * episode end (auto-reset): ``episode_end`` applies legged_gym's terrain curriculum (``curriculum.next_levels``:
-  distance from the cell's origin vs half a cell and vs half of what the command asked for) and, on, the command
+  distance from the cell's origin vs half a cell and vs half of the commanded path's reach) and, on, the command
   curriculum (``command_fraction`` of the final command ranges widens by ``command_step`` once the episodes that
   ended since the last update, at least ``num_envs`` of them, tracked at ``command_threshold`` of the tracking
   reward's maximum); envs that diverged (MuJoCo instability) keep their level;
@@ -103,13 +104,14 @@ class TerrainState:
         self.config, self.num_envs = c, num_envs
         self.terrain = terrain.build(terrain_config(c))
         self.sampler = self.terrain.sampler()
-        self.episode_length, self.episode_seconds = episode_length, episode_length * ctrl_dt
+        self.episode_length, self.ctrl_dt = episode_length, ctrl_dt
         self._rng = np.random.default_rng([seed, 0x7E55A1])
         ncol = len(self.terrain.columns)
         self.levels, self.cols = curriculum.initial_cells(
             num_envs, ncol, self._rng.integers(0, c.max_init_level + 1, size=num_envs))
         self.points = terrain.scan_points(*c.scan_shape, c.scan_spacing)
-        self.speed_sum = np.zeros(num_envs)
+        self.commanded = np.zeros((num_envs, 2))  # the commanded path's displacement and heading this episode
+        self.commanded_heading = np.zeros(num_envs)
         self.tracking_sum = np.zeros(num_envs)
         self.command_fraction = np.array(c.command_start if c.command_curriculum else (1.0, 1.0, 1.0))
         self._cmd_tracking, self._cmd_episodes = 0.0, 0
@@ -158,8 +160,10 @@ class TerrainState:
         return (x < x0) | (x > x1) | (y < y0) | (y > y1)
 
     def record_step(self, command: np.ndarray, tracking: np.ndarray) -> None:
-        """Adds a step's |commanded planar speed| and tracking reward (in [0, 1]) to each env's episode sums."""
-        self.speed_sum += np.linalg.norm(command[:, :2], axis=1)
+        """Advances each env's commanded path by a control step of ``command`` and adds the step's tracking reward
+        (in [0, 1]) to its episode sum."""
+        self.commanded, self.commanded_heading = curriculum.advance_commanded_path(
+            self.commanded, self.commanded_heading, command, self.ctrl_dt)
         self.tracking_sum += tracking
 
     def episode_end(self, idx: np.ndarray, qpos: np.ndarray, steps: np.ndarray, diverged: np.ndarray) -> None:
@@ -169,7 +173,7 @@ class TerrainState:
         if not self.frozen and c.terrain_curriculum:
             ok = idx[~diverged]
             dist = np.linalg.norm(qpos[~diverged, :2] - self.origins(ok)[:, :2], axis=1)
-            asked = curriculum.asked_distance(self.speed_sum[ok], steps[~diverged], self.episode_seconds)
+            asked = curriculum.asked_distance(self.commanded[ok], steps[~diverged], self.episode_length)
             self.levels[ok] = curriculum.next_levels(self.levels[ok], dist, asked, c.terrain_cell_size,
                                                      c.terrain_levels, self._rng.integers(0, c.terrain_levels, ok.size))
         if not self.frozen and c.command_curriculum:
@@ -181,7 +185,8 @@ class TerrainState:
                 self.command_fraction = curriculum.widen_commands(self.command_fraction, np.ones(3),
                                                                   np.array(c.command_step), mean, c.command_threshold)
                 self._cmd_tracking, self._cmd_episodes = 0.0, 0
-        self.speed_sum[idx] = 0.0
+        self.commanded[idx] = 0.0
+        self.commanded_heading[idx] = 0.0
         self.tracking_sum[idx] = 0.0
 
     def episode_metrics(self, levels: np.ndarray) -> dict[str, np.ndarray]:

@@ -139,7 +139,7 @@ def test_spawn_heights_and_evaluation_cells_match_cpu(name, go1, g1):
 
 def test_terrain_curriculum_at_episode_end_matches_cpu(go1):
     """Up a level after more than half a cell, down after less than half the asked distance, kept in between, kept
-    when diverged, random from the top; the metrics report the level played; speed sums restart."""
+    when diverged, random from the top; the metrics report the level played; the commanded paths restart."""
     task = tasks.make("go1_joystick_rough", 6, seed=0, overrides=OVERRIDES)
     task.reset()
     levels = np.array([3, 3, 3, 3, 9, 0])
@@ -153,14 +153,15 @@ def test_terrain_curriculum_at_episode_end_matches_cpu(go1):
     command = np.tile([0.5, 0.0, 0.0], (6, 1))  # asked: 0.5 m/s x 20 s = 10 m (half: 5 m); env 2: 6 m (3 m)
     command[2, 0] = 0.3
     steps = np.full(6, 100)
-    speed = command[:, 0] * 99  # 99 steps summed; the step's own command is added at its end
+    dt = task.config.ctrl_dt
+    path = np.stack([command[:, 0] * 99 * dt, np.zeros(6)], 1)  # 99 steps straight; the step's own at its end
     ended = np.array([True, True, True, True, True, False])
 
-    task.rough.speed_sum[:] = command[:, 0] * 100
+    task.rough.commanded[:] = path + np.stack([command[:, 0] * dt, np.zeros(6)], 1)
     task.rough.episode_end(np.arange(5), qpos[:5], steps[:5], np.isnan(qvel[:5]).any(axis=1))
     data = _data(go1, qpos, np.nan_to_num(qvel)).replace(qvel=_f32(qvel))
     extra = {"level": jnp.asarray(levels, jnp.int32), "col": jnp.asarray(task.rough.cols, jnp.int32),
-             "speed_sum": _f32(speed)}
+             "commanded": _f32(path), "commanded_heading": _f32(np.zeros(6))}
     info = {"command": _f32(command)}
     before = Go1MjxState(data=None, model_fields={}, pose_offset=None, info=info, steps_until_next_cmd=None,
                          steps=None, obs=None, critic_obs=None, episode_return=None, episode_length=None, key=None,
@@ -174,7 +175,8 @@ def test_terrain_curriculum_at_episode_end_matches_cpu(go1):
     assert 0 <= new[4] < 10 and new[5] == 0  # promoted past the top: a random level; not ended: kept
     np.testing.assert_array_equal(np.asarray(out.extras["terrain_level"]), levels)
     np.testing.assert_array_equal(np.asarray(out.extras["terrain_level_3"]), levels == 3)
-    np.testing.assert_allclose(np.asarray(state.extra["speed_sum"]), [0, 0, 0, 0, 0, 50.0], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(state.extra["commanded"])[:, 0], [0, 0, 0, 0, 0, 100 * 0.5 * dt], rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(state.extra["commanded_heading"]), np.zeros(6))
 
 
 def test_g1_heights_above_ground_and_motor_strength_match_cpu(g1):

@@ -154,9 +154,37 @@ def test_terrain_curriculum_promotes_demotes_and_wraps():
     np.testing.assert_array_equal(new, [1, 4, 2, 0, 2, 5])
 
 
-def test_asked_distance_and_initial_cells():
-    # mean |cmd_xy| 0.5 m/s over 10 steps, a 20 s episode: 10 m; an episode of 0 steps asks for nothing
-    np.testing.assert_allclose(cur.asked_distance(np.array([5.0, 0.0]), np.array([10, 0]), 20.0), [10.0, 0.0])
+def test_commanded_path_and_asked_distance():
+    dt, n = 0.001, 1000  # 1 s of commands
+    path, heading = np.zeros((3, 2)), np.zeros(3)
+    # straight at 1 m/s; sideways at 0.5 m/s; 1 m/s forward while turning pi/2 rad/s: a quarter circle of radius
+    # 2/pi m, ending at (2/pi, 2/pi)
+    command = np.array([[1.0, 0.0, 0.0], [0.0, 0.5, 0.0], [1.0, 0.0, np.pi / 2]])
+    for _ in range(n):
+        path, heading = cur.advance_commanded_path(path, heading, command, dt)
+    np.testing.assert_allclose(heading, [0.0, 0.0, np.pi / 2], atol=1e-12)
+    np.testing.assert_allclose(path, [[1.0, 0.0], [0.0, 0.5], [2 / np.pi, 2 / np.pi]], atol=1e-3)
+    # reach scaled from the 1000 steps walked to a 4000-step episode; an episode of 0 steps asks for nothing
+    np.testing.assert_allclose(cur.asked_distance(path, np.array([n, n, n]), 4 * n),
+                               [4.0, 2.0, 4 * np.hypot(2 / np.pi, 2 / np.pi)], rtol=1e-3)
+    assert cur.asked_distance(np.zeros((1, 2)), np.array([0]), 1000)[0] == 0.0
+
+
+def test_a_robot_that_follows_a_turning_command_is_not_demoted():
+    """A full circle in 20 s (1 m/s, 2 pi / 20 rad/s) asks for no distance, however long its path (20 m): the robot
+    that rode it back to its start stays; one that stood still on a straight command is demoted."""
+    steps, dt = 1000, 0.02
+    path, heading = np.zeros((2, 2)), np.zeros(2)
+    command = np.array([[1.0, 0.0, 2 * np.pi / 20], [1.0, 0.0, 0.0]])
+    for _ in range(steps):
+        path, heading = cur.advance_commanded_path(path, heading, command, dt)
+    asked = cur.asked_distance(path, np.array([steps, steps]), steps)
+    np.testing.assert_allclose(asked, [0.0, 20.0], atol=1e-9)
+    new = cur.next_levels(np.array([3, 3]), np.array([0.1, 0.1]), asked, 8.0, 10, np.array([0, 0]))
+    np.testing.assert_array_equal(new, [3, 2])
+
+
+def test_initial_cells():
     levels, cols = cur.initial_cells(6, 4, np.array([0, 1, 2, 0, 1, 2]))
     np.testing.assert_array_equal(cols, [0, 0, 1, 2, 2, 3])  # floor(i * 4 / 6)
     np.testing.assert_array_equal(levels, [0, 1, 2, 0, 1, 2])

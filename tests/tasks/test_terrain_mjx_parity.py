@@ -59,19 +59,22 @@ def test_curricula_match_on_jax():
     n = 200
     levels = rng.integers(0, 10, n)
     dist = rng.uniform(0, 8, n)
-    speed_sum, steps = rng.uniform(0, 1500, n), rng.integers(0, 1001, n)
+    path0, heading0, steps = rng.uniform(-15, 15, (n, 2)), rng.uniform(-4, 4, n), rng.integers(0, 1001, n)
+    command = rng.uniform(-1.5, 1.5, (n, 3))
     draws = rng.integers(0, 10, n)
-    asked = curriculum.asked_distance(speed_sum, steps, 20.0)
+    path, _ = curriculum.advance_commanded_path(path0, heading0, command, 0.02)
+    asked = curriculum.asked_distance(path, steps, 1000)
     expected = curriculum.next_levels(levels, dist, asked, 8.0, 10, draws)
     assert {-1, 0, 1} <= set(np.clip(expected - levels, -1, 1)) and (expected >= 0).all()
 
     @jax.jit
-    def on_device(levels, dist, speed_sum, steps, draws):
-        asked = curriculum.asked_distance(speed_sum, steps, 20.0)
+    def on_device(levels, dist, path, heading, command, steps, draws):
+        path, heading = curriculum.advance_commanded_path(path, heading, command, 0.02)
+        asked = curriculum.asked_distance(path, steps, 1000)
         return asked, curriculum.next_levels(levels, dist, asked, 8.0, 10, draws)
 
-    got_asked, got = on_device(*(jnp.asarray(a) for a in (levels, dist.astype(np.float32),
-                                                           speed_sum.astype(np.float32), steps, draws)))
+    floats = (jnp.asarray(a, jnp.float32) for a in (dist, path0, heading0, command))
+    got_asked, got = on_device(jnp.asarray(levels), *floats, jnp.asarray(steps), jnp.asarray(draws))
     np.testing.assert_allclose(got_asked, asked, rtol=1e-5)
     np.testing.assert_array_equal(got, expected)
     frac = np.array([0.5, 0.9, 1.0])
