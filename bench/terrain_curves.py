@@ -2,9 +2,11 @@
 
 Reads every ``<config>_s<seed>_<date>.jsonl`` (or ``.jsonl.gz``, as ``bench/p33_terrain.sh`` leaves them) in the
 given folders or files, keeps the training rows that log ``episode/terrain_level`` (the mean level of the episodes
-that ended: ``tasks/rough.py``), thinned to at most ``--points`` per run, and writes ``{run: {"wall_s": [...],
-"step": [...], "terrain_level": [...], "terrain_level_top": k}}`` as JSON; ``--png`` also plots them (matplotlib,
-the dev extra) with the goal line at 70% of the top level::
+that ended since the previous row: ``tasks/rough.py``; on the GPU machine a row every ~30 ms holds 1-7 episodes, so
+one row says little about the population), averages them over a trailing window of ``WINDOW_S`` (one episode's
+duration: every robot ends about one episode in it), thinned to at most ``--points`` per run, and writes
+``{run: {"wall_s": [...], "step": [...], "terrain_level": [...], "terrain_level_top": k, "window_s": w}}`` as JSON;
+``--png`` also plots them (matplotlib, the dev extra) with the goal line at 70% of the top level::
 
     python bench/terrain_curves.py bench/results/h100/phase3/terrain/metrics --out curves.json --png curves.png
 """
@@ -21,6 +23,23 @@ from typing import Any
 
 PREFIX = "episode/terrain_level_"
 GOAL_FRACTION = 0.7  # issue 33: the mean terrain level reaches >= 70% of the top level
+WINDOW_S = 20.0  # the rough tasks' episode: 1000 control steps at 50 Hz
+
+
+def windowed(rows: list[dict[str, Any]], window_s: float = WINDOW_S) -> list[tuple[dict[str, Any], float]]:
+    """(row, mean level) for each training row from ``window_s`` after the first on: the mean of the
+    ``episode/terrain_level`` of the rows logged in the trailing ``window_s`` seconds of wall time (``time/wall_s``),
+    the row's own included; rows in wall-time order."""
+    out, total, lo = [], 0.0, 0
+    start = rows[0]["time/wall_s"] if rows else 0.0
+    for hi, r in enumerate(rows):
+        total += r["episode/terrain_level"]
+        while rows[lo]["time/wall_s"] <= r["time/wall_s"] - window_s:
+            total -= rows[lo]["episode/terrain_level"]
+            lo += 1
+        if r["time/wall_s"] >= start + window_s:
+            out.append((r, total / (hi - lo + 1)))
+    return out
 
 
 def _open(path: str):
@@ -35,13 +54,15 @@ def curve(path: str, points: int = 400) -> dict[str, Any]:
             r = json.loads(line)
             if "episode/terrain_level" in r and "time/wall_s" in r:
                 rows.append(r)
-    if len(rows) > points:
-        keep = sorted({round(i * (len(rows) - 1) / (points - 1)) for i in range(points)})
-        rows = [rows[i] for i in keep]
+    smooth = windowed(rows)
+    if len(smooth) > points:
+        keep = sorted({round(i * (len(smooth) - 1) / (points - 1)) for i in range(points)})
+        smooth = [smooth[i] for i in keep]
     keys = rows[0].keys() if rows else ()
     top = max((int(k[len(PREFIX):]) for k in keys if k.startswith(PREFIX) and k[len(PREFIX):].isdigit()), default=None)
-    return {"wall_s": [round(r["time/wall_s"], 1) for r in rows], "step": [r["step"] for r in rows],
-            "terrain_level": [round(r["episode/terrain_level"], 3) for r in rows], "terrain_level_top": top}
+    return {"wall_s": [round(r["time/wall_s"], 1) for r, _ in smooth], "step": [r["step"] for r, _ in smooth],
+            "terrain_level": [round(m, 3) + 0.0 for _, m in smooth],  # + 0.0: no -0.0 from the running sum
+            "terrain_level_top": top, "window_s": WINDOW_S}
 
 
 def run_name(path: str) -> str:
@@ -70,7 +91,7 @@ def plot(curves: dict[str, dict[str, Any]], path: str) -> None:
     for top in tops:
         ax.axhline(GOAL_FRACTION * top, color="grey", linestyle="--", linewidth=0.8)
     ax.set_xlabel("wall time from process start (s)")
-    ax.set_ylabel("mean terrain level (ended episodes)")
+    ax.set_ylabel(f"mean terrain level (episodes ended in {WINDOW_S:.0f} s)")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
