@@ -416,7 +416,7 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
     summary_path = os.path.join(logdir, "summary.json")
     if os.path.exists(summary_path):
         record["run_summary"] = json.load(open(summary_path))
-    if stopped_by == "exit" and proc.returncode not in (0, None):
+    if proc.returncode not in (0, None):  # a crash, or a run stopped at the budget that failed to shut down cleanly
         record["stdout_tail"] = open(os.path.join(logdir, "stdout.log")).read()[-3000:]
     return record
 
