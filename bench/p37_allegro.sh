@@ -12,7 +12,9 @@
 # std (the action std's bound falls to STD over SCHED env steps); grasp (episodes start from the grasp cache);
 # all (the three); steady (all, and a fall costs FALL (default -40) instead of the task's -10: the teacher of `all`
 # turns objects at 0.31 rad/s, past the 0.2 goal, but drops them 57% into an episode against the 0.8 goal, so the
-# reward is moved toward keeping the object); custom (EXTRA's flags). EXTRA is appended to every setting.
+# reward is moved toward keeping the object); hold (steady, and HORA's object-velocity penalty back at LINVEL
+# (default -0.3; the recipes set it to 0): a scripted gait from the grasp cache matched steady's teachers by pushing
+# the object off the palm, docs/RESULTS.md); custom (EXTRA's flags). EXTRA is appended to every setting.
 set -u
 OUT=${OUT:-/tmp/p37}; mkdir -p "$OUT/runs"
 ROBOTS="wonik_allegro" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
@@ -27,8 +29,10 @@ grasp="--task_config=grasp_cache=builtin --task_config=reset_press=0"
 all="$fixed $std $grasp"
 case $SETTING in
   base) S="" ;; fixed_lr) S=$fixed ;; std) S=$std ;; grasp) S=$grasp ;; all) S=$all ;;
-  steady) S="$all --task_config=scale_fall=${FALL:--40}" ;; custom) S="" ;;
-  *) echo "SETTING must be base, fixed_lr, std, grasp, all, steady or custom"; exit 2 ;;
+  steady) S="$all --task_config=scale_fall=${FALL:--40}" ;;
+  hold) S="$all --task_config=scale_fall=${FALL:--40} --task_config=scale_object_linvel=${LINVEL:--0.3}" ;;
+  custom) S="" ;;
+  *) echo "SETTING must be base, fixed_lr, std, grasp, all, steady, hold or custom"; exit 2 ;;
 esac
 common="--num_workers=$workers --envs_per_worker=${ENVS:-64} --eval_every=${EVAL_EVERY:-1000000} \
   --eval_envs=${EVAL_ENVS:-128} $S ${EXTRA:-} ${RESUME:+--resume}"
