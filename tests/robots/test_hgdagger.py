@@ -5,6 +5,7 @@ whole episodes and only operator rows are aggregated."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -111,3 +112,20 @@ def test_an_ensemble_fits_members_from_different_seeds_and_acts_their_mean():
     assert len(tuned["actors"]) == 3 and tuned["obs_norm"] is weights["obs_norm"]
     with pytest.raises(ValueError, match="init"):
         learner_jax.fit(obs, action, config, init=single)
+
+
+def test_a_summary_with_an_evaluation_cut_to_no_episode_is_strict_json():
+    """A step cap that ends the run inside the demonstrations leaves every evaluation without an episode: their
+    rates are NaN in the history and None in the summary (summary.json is strict JSON)."""
+    task = tasks.make("robot_pick_place", 2, 0, {})
+    try:
+        cfg = dataclasses.replace(CONFIG, demo_episodes=2, rounds=1, episodes_per_round=1, eval_episodes=2,
+                                  max_env_steps=10, bc=BCConfig(hidden=(16, 16), epochs=2))
+        loop = HGDagger(task, cfg, seed=0)
+        summary = loop.run()
+    finally:
+        task.close()
+    assert np.isnan(loop.history[0]["eval/success_rate"])
+    assert summary["initial_success_rate"] is None and summary["final_success_rate"] is None
+    assert None in summary["success_rates"]
+    json.dumps(summary, allow_nan=False)

@@ -103,6 +103,11 @@ class Phase:
         return float(np.mean(self.successes)) if self.successes else float("nan")
 
 
+def _finite_or_none(x: float) -> float | None:
+    """``x``, or None where it is not finite: strict JSON (summary.json) has no NaN."""
+    return float(x) if np.isfinite(x) else None
+
+
 class HGDagger:
     def __init__(self, task: Any, config: HGDaggerConfig, seed: int = 0, logdir: str | None = None):
         if not hasattr(task, "set_operator"):
@@ -172,7 +177,8 @@ class HGDagger:
         print(f"hg-dagger {scalars['hgdagger/round']:.0f}: {shown}", flush=True)
 
     def run(self) -> dict[str, Any]:
-        """Demonstrations, the initial fit, then the gated rounds; returns the summary (also in the log)."""
+        """Demonstrations, the initial fit, then the gated rounds; returns the summary (also in the log), JSON-ready:
+        a success rate of an evaluation the step cap cut to no episode is None there (NaN in ``history``)."""
         cfg = self.config
         logger = None
         if self.logdir:
@@ -223,6 +229,7 @@ class HGDagger:
         last = self.history[-1]
         return {"rounds": int(last["hgdagger/round"]), "env_steps": self.env_steps,
                 "wall_s": time.perf_counter() - self.t0, "logdir": self.logdir,
-                "initial_success_rate": rates[0], "final_success_rate": evaluated[-1] if evaluated else float("nan"),
-                "dataset_rows": int(last["hgdagger/dataset_rows"]), "success_rates": rates,
-                "kept_success_rate": best}
+                "initial_success_rate": _finite_or_none(rates[0]),
+                "final_success_rate": evaluated[-1] if evaluated else None,
+                "dataset_rows": int(last["hgdagger/dataset_rows"]),
+                "success_rates": [_finite_or_none(r) for r in rates], "kept_success_rate": _finite_or_none(best)}
