@@ -12,7 +12,11 @@ columns``) run one episode each (``--seconds``) under the task's own command sam
 evaluation reports it (``tasks/rough.py``'s ``evaluation_numbers``: tracking and yaw-rate errors, fall rate, overall
 and per terrain type). The flat task is measured the same way as the reference. ``--variant NAME=K=V;K=V`` as in
 ``bench/rough_standing_falls.py``; ``--task`` may be a flat task too (its variants then vary the flat task: e.g. the
-rough task's action latency on the flat floor, ``dr_action_delay=(0,1)``).
+rough task's action latency on the flat floor, ``dr_action_delay=(0,1)``). ``--curriculum`` instead plays one whole
+episode per robot and reports what the terrain curriculum would do with each (``curriculum_moves``)::
+
+    python bench/rough_policy_eval.py --policy policies/go1_walk.onnx --curriculum --levels 0 --envs 140 \
+        --flat '' --out bench/results/local/phase3/rough_policy_curriculum.json
 """
 
 from __future__ import annotations
@@ -67,6 +71,47 @@ def numbers(task_name: str, overrides: dict, level: int, policy, envs: int, seco
         task.close()
 
 
+def curriculum_moves(task_name: str, overrides: dict, level: int, policy, envs: int, seed: int) -> dict:
+    """What the terrain curriculum would do after one whole episode of ``policy`` on ``level`` (curricula frozen,
+    full command ranges): the fractions of robots that fell, that walked past half a cell (``up``), that the task's
+    rule demotes (``down``: less than half the reach of the commanded path) and that legged_gym's rule would demote
+    (``down_path_length``: less than half of the mean |command| x the episode's duration), a robot that fell judged
+    by its last standing step. Read one step before the time limit, so the state is the episode's."""
+    import tasks
+    from tasks import curriculum
+
+    task = tasks.make(task_name, envs, seed, {**overrides, "terrain_curriculum": False})
+    try:
+        tracker = task.eval_tracker()
+        task.rough.levels[:] = level
+        obs, _ = task.reset()
+        r, length = task.rough, task.config.episode_length
+        speed = np.zeros(envs)
+        steps = np.zeros(envs)
+        last = {"dist": np.zeros(envs), "reach": np.zeros(envs)}
+        for _ in range(length - 1):
+            active = tracker.active.copy()
+            speed += np.where(active, np.linalg.norm(task.command[:, :2], axis=1), 0.0)
+            obs = tracker.step(policy(obs)).obs
+            steps += active
+            still = tracker.active  # a robot that fell keeps its last standing step's numbers (auto-reset moved it)
+            dist = np.linalg.norm(task.sim.qpos[:, :2] - r.origins(np.arange(envs))[:, :2], axis=1)
+            last["dist"] = np.where(still, dist, last["dist"])
+            last["reach"] = np.where(still, curriculum.asked_distance(r.commanded, steps, length), last["reach"])
+            if tracker.done:
+                break
+        fell = ~tracker.active
+        cell = r.config.terrain_cell_size
+        up = last["dist"] > cell / 2
+        down = (last["dist"] < last["reach"] / 2) & ~up
+        by_length = (last["dist"] < speed * task.spec.ctrl_dt * length / np.maximum(steps, 1) / 2) & ~up
+        return {"fell": float(fell.mean()), "up": float(up.mean()), "down": float(down.mean()),
+                "down_path_length": float(by_length.mean()), "median_distance": float(np.median(last["dist"])),
+                "median_reach": float(np.median(last["reach"]))}
+    finally:
+        task.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--policy", required=True, help="ONNX export of a --flat policy")
@@ -77,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--envs", type=int, default=70)
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--curriculum", action="store_true",
+                    help="instead: what the terrain curriculum would do after one whole episode (curriculum_moves)")
     ap.add_argument("--out", required=True)
     args = ap.parse_args(argv)
     if not os.path.isfile(args.policy):
@@ -90,6 +137,18 @@ def main(argv: list[str] | None = None) -> int:
     policy = onnx_policy(args.policy)
     rows = []
     keys = ("tracking_error", "yaw_rate_error", "fall_rate")
+    if args.curriculum:
+        if not is_rough(args.task):
+            print(f"error: --curriculum needs a rough task, got {args.task!r}", file=sys.stderr)
+            return 2
+        for name, overrides in variants:
+            for level in args.levels:
+                r = curriculum_moves(args.task, overrides, level, policy, args.envs, args.seed)
+                rows.append({"variant": name, "task": args.task, "level": level, **r})
+                print(f"{name:10s} level {level}: " + ", ".join(f"{k} {v:.3f}" for k, v in r.items()))
+        write_json(args.out, {"machine": host_info(), "policy": args.policy, "envs": args.envs, "seed": args.seed,
+                              "curriculum": True, "rows": rows})
+        return 0
     for name, overrides in variants:
         for level in args.levels:
             t0 = time.perf_counter()
