@@ -6,10 +6,11 @@
 
 A record (``ROLES``: teacher | student | ppo) is read from the run's logdir: its last evaluation (``summary.json``,
 the trainer's final one) gives ``rotation_rad_s`` (with ``rotation_rad_s_se``, its standard error over the
-episodes, where the run logged it), ``time_to_fall`` (fraction of the episode), ``rotate_reward`` (mean
-per-step rotation term) and ``eval_episodes``; ``env_steps``, ``wall_s`` and ``interrupted`` (stopped by a signal or
-time limit before its step budget) are the run's; ``curve`` lists every
-evaluation as [env steps, rotation rate, time to fall]; ``final_evals`` the large evaluations of its last
+episodes, where the run logged it), ``rotation_episode_rad_s`` (the yaw turned over the whole time limit per
+second, 0 after a fall: ``tasks/allegro_metric.py``; None for runs from before it was logged), ``time_to_fall``
+(fraction of the episode), ``rotate_reward`` (mean per-step rotation term) and ``eval_episodes``; ``env_steps``,
+``wall_s`` and ``interrupted`` (stopped by a signal or time limit before its step budget) are the run's; ``curve``
+lists every evaluation as [env steps, rotation rate, time to fall]; ``final_evals`` the large evaluations of its last
 checkpoints where the logdir holds them (``final_eval_<step>.json``: ``python -m unilab_jax.play --checkpoint <step>
 --episodes N``'s report, written there by ``bench/p37_allegro.sh FINAL_EVAL=N``), each {checkpoint, episodes,
 rotation_rad_s, rotation_rad_s_se, time_to_fall}, and ``neighbour_gap_rad_s``, the rate difference of the last two
@@ -58,6 +59,7 @@ def read_run(logdir: str) -> dict:
     gap = abs(finals[-1]["rotation_rad_s"] - finals[-2]["rotation_rad_s"]) if len(finals) > 1 else None
     return {"rotation_rad_s": summary["eval/rotation_rate"],
             "rotation_rad_s_se": summary.get("eval/rotation_rate_se"),
+            "rotation_episode_rad_s": summary.get("eval/rotation_episode"),
             "time_to_fall": summary["eval/time_to_fall"], "rotate_reward": summary["eval/rotate_reward"],
             "eval_episodes": summary.get("eval/episodes"), "env_steps": summary["env_steps"],
             "wall_s": summary["wall_s"], "interrupted": summary.get("interrupted"), "curve": curve,

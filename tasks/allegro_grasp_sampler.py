@@ -1,6 +1,7 @@
 """Samples the grasps of ``allegro_rotate``'s grasp cache (``tasks/allegro_grasps.py``).
 
-    python -m tasks.allegro_grasp_sampler --out FILE [--candidates 8192] [--task_config KEY=VALUE ...]
+    python -m tasks.allegro_grasp_sampler --out FILE [--candidates 8192] [--hold_steps 400] [--task_config K=V ...]
+    python -m tasks.allegro_grasp_sampler --from tasks/data/allegro_grasps.npz --hold_steps 400 --out FILE
 
 Each candidate draws an object (the task's distributions), rests it on the palm with a random yaw, starts the
 hand at the canonical pose (+ U(+-0.05) rad) and closes it towards random targets (below), then simulates
@@ -17,6 +18,10 @@ the 2-core dev VM under load); the kept grasps press the object onto the palm fr
 top edge, thumb on the far one). A settle of 1 s kept 10% (512 candidates); time to fall under zero actions
 (64 envs, 20 s) was 0.89 from those 52 grasps, 0.94 from 39 of a 2 s settle and 0.89 from the builtin cache's
 841: within the noise of so few grasps, so the longer settle is kept for its stricter test, not a measured gain.
+
+``--hold_steps N`` then keeps only the grasps whose object is still on the palm (``fell`` false, MuJoCo stable) after
+N more control steps from the kept state with its targets held, a whole still episode for N = 400 (``held_for``);
+``--from FILE`` applies that filter to an existing cache instead of sampling (same physics: the file's).
 """
 
 from __future__ import annotations
@@ -100,33 +105,68 @@ def generate(config, candidates: int, seed: int, min_fingers: int = 2) -> dict[s
             "friction": f32(draws["friction"][keep]), "com": f32(draws["com"][keep])}
 
 
+def held_for(config, grasps: dict[str, np.ndarray], steps: int) -> np.ndarray:
+    """[n] bool: the grasps (``FIELDS``, ``shape`` indexing ``config.shapes``) whose object is still on the palm, with
+    no MuJoCo instability, at every one of ``steps`` control steps with their targets held, simulated as one
+    batch of the task's physics from the grasp's state at rest."""
+    c = dataclasses.replace(config, grasp_cache="", reset_press=0.0)
+    n, nj, idx = len(grasps["shape"]), ar.NJ, np.arange(len(grasps["shape"]))
+    task = ar.AllegroRotate(c, n, 0)
+    draws = {"active": np.eye(len(c.shapes))[grasps["shape"]],
+             **{k: np.asarray(grasps[k], np.float64) for k in ("scale", "mass", "friction", "com")}}
+    task.set_objects(idx, draws)
+    target = np.asarray(grasps["target"], np.float64)
+    task.sim.set_state(idx, np.asarray(grasps["qpos"], np.float64), np.zeros((n, task.model.nv)), ctrl=target)
+    lost = np.zeros(n, bool)
+    for _ in range(steps):
+        lost |= task.sim.step(target)
+        lost |= ar.fell(ar.relative_position(task.sim.qpos[:, nj:nj + 3], task.consts["palm"]), c.fall_radius)
+    task.close()
+    return ~lost
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tasks.allegro_grasp_sampler", description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, help="the .npz to write")
     parser.add_argument("--candidates", type=int, default=8192)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--min_fingers", type=int, default=2)
+    parser.add_argument("--hold_steps", type=int, default=0, help="keep only grasps held this many still steps")
+    parser.add_argument("--from", dest="source", default="", help="filter this cache (--hold_steps), not sample")
     parser.add_argument("--task_config", action="append", default=[], help="KEY=VALUE of allegro_rotate's config")
     args = parser.parse_args(argv)
     import tasks
     from unilab_jax.config import ConfigError, apply_overrides
 
-    if args.candidates < 1 or not 1 <= args.min_fingers <= len(FINGERS):
-        print(f"error: need --candidates >= 1 and 1 <= --min_fingers <= {len(FINGERS)}", file=sys.stderr)
+    if args.candidates < 1 or not 1 <= args.min_fingers <= len(FINGERS) or args.hold_steps < 0:
+        print(f"error: need --candidates >= 1, 1 <= --min_fingers <= {len(FINGERS)} and --hold_steps >= 0",
+              file=sys.stderr)
         return 2
-    try:
-        config = apply_overrides(tasks.default_config("allegro_rotate"), args.task_config)
-    except ConfigError as e:
-        print(f"error: --task_config: {e}", file=sys.stderr)
+    if args.source and (args.hold_steps == 0 or args.task_config):
+        print("error: --from filters a cache with its own physics: --hold_steps, no --task_config", file=sys.stderr)
         return 2
     t0 = time.time()
-    batches = [generate(config, min(BATCH, args.candidates - start), args.seed + start, args.min_fingers)
-               for start in range(0, args.candidates, BATCH)]
-    grasps = {k: np.concatenate([b[k] for b in batches]) for k in allegro_grasps.FIELDS}
+    try:
+        config = apply_overrides(tasks.default_config("allegro_rotate"), args.task_config)
+        if args.source:
+            config, grasps = allegro_grasps.read(args.source, config)
+            made = f"{len(grasps['shape'])} grasps of {args.source}"
+        else:
+            batches = [generate(config, min(BATCH, args.candidates - start), args.seed + start, args.min_fingers)
+                       for start in range(0, args.candidates, BATCH)]
+            grasps = {k: np.concatenate([b[k] for b in batches]) for k in allegro_grasps.FIELDS}
+            made = f"{len(grasps['shape'])} grasps of {args.candidates} candidates"
+    except (ConfigError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if args.hold_steps:
+        keep = np.concatenate([held_for(config, {k: v[start:start + BATCH] for k, v in grasps.items()}, args.hold_steps)
+                               for start in range(0, len(grasps["shape"]), BATCH)])
+        grasps = {k: v[keep] for k, v in grasps.items()}
+        made += f", {int(keep.sum())} held {args.hold_steps} still steps"
     allegro_grasps.save(args.out, grasps, config)
     counts = {s: int(np.sum(grasps["shape"] == i)) for i, s in enumerate(config.shapes)}
-    print(f"{len(grasps['shape'])} grasps of {args.candidates} candidates {counts} in {time.time() - t0:.0f} s "
-          f"-> {args.out}")
+    print(f"{made} {counts} in {time.time() - t0:.0f} s -> {args.out}")
     return 0
 
 

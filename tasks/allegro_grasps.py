@@ -19,8 +19,10 @@ is touched by >= 2 fingers (52 by 2, 12 by 3); after 5 s 46 still by >= 2; time 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+from typing import Any
 
 import numpy as np
 
@@ -72,6 +74,18 @@ def load(config) -> dict[str, np.ndarray]:
     out["count"] = np.array(count)
     out["start"] = np.cumsum(out["count"]) - out["count"]
     return out
+
+
+def read(path: str, config) -> tuple[Any, dict[str, np.ndarray]]:
+    """(``config`` with the file's physics and shapes, the file's grasps: ``FIELDS``, ``shape`` indexing those
+    shapes) of the cache ``path``, as made; ValueError: no such file."""
+    if not os.path.isfile(path):
+        raise ValueError(f"{path!r}: no such grasp cache")
+    with np.load(path) as f:
+        made, shapes = json.loads(str(f["physics"])), tuple(str(s) for s in f["shapes"])
+        grasps = {k: f[k] for k in FIELDS}
+    made = {k: tuple(v) if isinstance(v, list) else v for k, v in made.items()}
+    return dataclasses.replace(config, shapes=shapes, **made), grasps
 
 
 def draw(grasps: dict, shape, u) -> dict:

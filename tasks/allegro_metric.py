@@ -14,10 +14,12 @@ class RotationTracker:
     episode's steps), ``time_to_fall`` (fraction of the episode before a fall, 1 without one),
     ``rotate_reward`` (mean per-step rotation term); ``rotation_rate_se``: the standard error of
     ``rotation_rate`` over the episodes (the per-episode rates' std / sqrt(episodes)), what ranks two
-    evaluations. ``stepper``: what ``step`` steps (the task, or a ``<task>_hist`` variant wrapping it); the
-    metric's inputs are read from ``task``."""
+    evaluations; ``rotation_episode`` (rad/s): the yaw each episode turned over the whole time limit, its steps
+    after a fall counting 0 (``rotation_rate`` averages over the steps before the fall, so an object flung off the
+    palm counts at the speed it was flung with), final once ``done``. ``stepper``: what ``step`` steps (the task,
+    or a ``<task>_hist`` variant wrapping it); the metric's inputs are read from ``task``."""
 
-    LOGGED = ("rotation_rate", "rotation_rate_se", "time_to_fall", "rotate_reward")
+    LOGGED = ("rotation_rate", "rotation_rate_se", "rotation_episode", "time_to_fall", "rotate_reward")
 
     def __init__(self, task, stepper=None):
         self._task, self._stepper = task, stepper if stepper is not None else task
@@ -48,5 +50,6 @@ class RotationTracker:
         ttf = np.where(np.isnan(self._fall_at), 1.0, np.nan_to_num(self._fall_at) / limit)
         rates = self._angvel / steps
         se = float(np.std(rates, ddof=1) / np.sqrt(rates.size)) if rates.size > 1 else 0.0
-        return {"rotation_rate": float(np.mean(rates)), "rotation_rate_se": se, "time_to_fall": float(np.mean(ttf)),
+        return {"rotation_rate": float(np.mean(rates)), "rotation_rate_se": se,
+                "rotation_episode": float(np.mean(self._angvel) / limit), "time_to_fall": float(np.mean(ttf)),
                 "rotate_reward": float(np.mean(self._rotate / steps))}

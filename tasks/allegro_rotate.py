@@ -58,8 +58,9 @@ After HORA (Qi et al., CoRL 2022, arXiv 2210.04887), rebuilt on MuJoCo with Mena
   palm centre. Time limit 400 steps (truncation).
 * Evaluation metrics (``eval_tracker()`` -> ``tasks.allegro_metric.RotationTracker``, the trainer's
   ``eval/*``): ``rotation_rate`` (mean object angular velocity about z over the alive steps of each env's first
-  episode, rad/s, unclipped) and its standard error over the episodes, ``time_to_fall`` (mean fraction of
-  the episode before a fall; 1 without one), plus ``rotate_reward`` (mean per-step rotation reward term).
+  episode, rad/s, unclipped) and its standard error over the episodes, ``rotation_episode`` (the yaw turned over
+  the whole time limit per second, 0 after a fall), ``time_to_fall`` (mean fraction of the episode before a fall;
+  1 without one), plus ``rotate_reward`` (mean per-step rotation reward term).
 
 The observation/reward math is module-level functions written against the shim (``step_math``,
 ``observe``, ``reward_terms``, ``object_fields``), which ``tasks/mjx_allegro.py`` runs on jax arrays.

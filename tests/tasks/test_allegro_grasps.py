@@ -81,3 +81,20 @@ def test_bad_caches_are_refused(tmp_path):
         tasks.make("allegro_rotate", 1, seed=0, overrides={"grasp_cache": str(tmp_path / "none.npz")})
     assert allegro_grasp_sampler.main(["--out", str(tmp_path / "x.npz"), "--candidates", "0"]) == 2
     assert allegro_grasp_sampler.main(["--out", str(tmp_path / "x.npz"), "--task_config", "kq=1"]) == 2
+
+
+def test_a_cache_filtered_by_a_still_hold_keeps_a_subset_with_its_physics(tmp_path, capsys):
+    config = dataclasses.replace(allegro_rotate.default_config(), shapes=("box",))
+    grasps = allegro_grasp_sampler.generate(config, 32, seed=0, min_fingers=2)
+    assert len(grasps["shape"]) >= 2
+    grasps["qpos"][0, allegro_rotate.NJ + 2] = -0.05  # grasp 0's object below the palm: a fall at once
+    src, out = str(tmp_path / "g.npz"), str(tmp_path / "held.npz")
+    allegro_grasps.save(src, grasps, config)
+    assert allegro_grasp_sampler.main(["--from", src, "--out", out]) == 2  # --from filters: --hold_steps needed
+    assert allegro_grasp_sampler.main(["--from", src, "--hold_steps", "40", "--out", out]) == 0
+    made, held = allegro_grasps.read(out, allegro_rotate.default_config())
+    assert made.shapes == ("box",) and allegro_grasps.physics(made) == allegro_grasps.physics(config)
+    kept = {tuple(q) for q in held["qpos"].tolist()}
+    assert 0 < len(kept) < len(grasps["shape"]) and kept <= {tuple(q) for q in grasps["qpos"].tolist()}
+    assert tuple(grasps["qpos"][0].tolist()) not in kept
+    assert f"{len(kept)} held 40 still steps" in capsys.readouterr().out

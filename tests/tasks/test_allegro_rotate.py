@@ -123,6 +123,8 @@ def test_simulated_rotation_fall_and_metrics():
     m = tracker.result()
     assert m["time_to_fall"] == pytest.approx((1.0 + 6 / 400) / 2)  # env 0 never fell, env 1 at step 6
     assert m["rotation_rate"] > 0.0 and m["rotate_reward"] > 0.0
+    # both envs played 6 steps: the whole-episode rate is the alive-step rate x 6 / 400
+    assert m["rotation_episode"] == pytest.approx(m["rotation_rate"] * 6 / 400)
     task.close()
 
 
