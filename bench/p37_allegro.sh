@@ -13,8 +13,8 @@
 # all (the three); steady (all, and a fall costs FALL (default -40) instead of the task's -10: the teacher of `all`
 # turns objects at 0.31 rad/s, past the 0.2 goal, but drops them 57% into an episode against the 0.8 goal, so the
 # reward is moved toward keeping the object); hold (steady, and HORA's object-velocity penalty back at LINVEL
-# (default -0.3; the recipes set it to 0): a scripted gait from the grasp cache matched steady's teachers by pushing
-# the object off the palm, docs/RESULTS.md); custom (EXTRA's flags). EXTRA is appended to every setting.
+# (default -0.3; the recipes set it to 0): from the grasp cache the teachers drop objects as early as a scripted
+# gait that pushes them off the palm, docs/RESULTS.md); custom (EXTRA's flags). EXTRA is appended to every setting.
 set -u
 OUT=${OUT:-/tmp/p37}; mkdir -p "$OUT/runs"
 ROBOTS="wonik_allegro" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
@@ -27,10 +27,11 @@ fixed="--config lr_schedule=fixed --config learning_rate=${LR:-3e-4}"
 std="--config final_std=${STD:-0.3} --config schedule_steps=${SCHED:-4000000}"
 grasp="--task_config=grasp_cache=builtin --task_config=reset_press=0"
 all="$fixed $std $grasp"
+steady="$all --task_config=scale_fall=${FALL:--40}"
 case $SETTING in
   base) S="" ;; fixed_lr) S=$fixed ;; std) S=$std ;; grasp) S=$grasp ;; all) S=$all ;;
-  steady) S="$all --task_config=scale_fall=${FALL:--40}" ;;
-  hold) S="$all --task_config=scale_fall=${FALL:--40} --task_config=scale_object_linvel=${LINVEL:--0.3}" ;;
+  steady) S=$steady ;;
+  hold) S="$steady --task_config=scale_object_linvel=${LINVEL:--0.3}" ;;
   custom) S="" ;;
   *) echo "SETTING must be base, fixed_lr, std, grasp, all, steady, hold or custom"; exit 2 ;;
 esac

@@ -58,17 +58,25 @@ def numbers(task_name: str, overrides: dict, level: int, policy, envs: int, seco
     import tasks
     from tasks.walking_metric import WalkingTracker
 
-    rough = is_rough(task_name)
-    task = tasks.make(task_name, envs, seed, {**overrides, "terrain_curriculum": False} if rough else overrides)
+    if is_rough(task_name):
+        task, tracker = frozen(task_name, overrides, level, envs, seed)
+    else:
+        task = tasks.make(task_name, envs, seed, overrides)
+        tracker = WalkingTracker(task)
     try:
-        if rough:
-            tracker = task.eval_tracker()  # frozen: curricula off, full command ranges
-            task.rough.levels[:] = level
-        else:
-            tracker = WalkingTracker(task)
         return episode(task, tracker, policy, round(seconds / task.spec.ctrl_dt))
     finally:
         task.close()
+
+
+def frozen(task_name: str, overrides: dict, level: int, envs: int, seed: int):
+    """(the rough task with every robot on ``level``, its evaluation tracker: curricula off, full command ranges)."""
+    import tasks
+
+    task = tasks.make(task_name, envs, seed, {**overrides, "terrain_curriculum": False})
+    tracker = task.eval_tracker()
+    task.rough.levels[:] = level
+    return task, tracker
 
 
 def curriculum_moves(task_name: str, overrides: dict, level: int, policy, envs: int, seed: int) -> dict:
@@ -77,15 +85,13 @@ def curriculum_moves(task_name: str, overrides: dict, level: int, policy, envs: 
     rule demotes (``down``: less than half the reach of the commanded path) and that legged_gym's rule would demote
     (``down_path_length``: less than half of the mean |command| x the episode's duration), a robot that fell judged
     by its last standing step. Read one step before the time limit, so the state is the episode's."""
-    import tasks
     from tasks import curriculum
 
-    task = tasks.make(task_name, envs, seed, {**overrides, "terrain_curriculum": False})
+    task, tracker = frozen(task_name, overrides, level, envs, seed)
     try:
-        tracker = task.eval_tracker()
-        task.rough.levels[:] = level
         obs, _ = task.reset()
         r, length = task.rough, task.config.episode_length
+        origins = r.origins(np.arange(envs))[:, :2]  # the cells stay put: the curriculum is off
         speed = np.zeros(envs)
         steps = np.zeros(envs)
         last = {"dist": np.zeros(envs), "reach": np.zeros(envs)}
@@ -95,7 +101,7 @@ def curriculum_moves(task_name: str, overrides: dict, level: int, policy, envs: 
             obs = tracker.step(policy(obs)).obs
             steps += active
             still = tracker.active  # a robot that fell keeps its last standing step's numbers (auto-reset moved it)
-            dist = np.linalg.norm(task.sim.qpos[:, :2] - r.origins(np.arange(envs))[:, :2], axis=1)
+            dist = np.linalg.norm(task.sim.qpos[:, :2] - origins, axis=1)
             last["dist"] = np.where(still, dist, last["dist"])
             last["reach"] = np.where(still, curriculum.asked_distance(r.commanded, steps, length), last["reach"])
             if tracker.done:

@@ -48,19 +48,13 @@ def load(config) -> dict[str, np.ndarray]:
     """The grasps of ``config.grasp_cache`` for ``config.shapes``, grouped by shape: ``FIELDS`` (``shape``:
     index into ``config.shapes``) plus ``start`` and ``count`` [G] (each shape's rows). ValueError: no file,
     other physics, or a shape without grasps."""
-    path = path_of(config.grasp_cache)
-    if not os.path.isfile(path):
-        raise ValueError(f"grasp_cache {config.grasp_cache!r}: no such file (make one with python -m "
-                         f"tasks.allegro_grasp_sampler --out FILE)")
-    with np.load(path) as f:
-        data = {k: f[k] for k in f.files}
-    made, want = json.loads(str(data["physics"])), physics(config)
+    made, names, data = _contents(config.grasp_cache)
+    want = physics(config)
     diff = sorted(k for k in want if made.get(k) != want[k])
     if diff:
         raise ValueError(f"grasp_cache {config.grasp_cache!r} was made with other physics ({', '.join(diff)}: "
                          f"{[made.get(k) for k in diff]} vs {[want[k] for k in diff]}); make one with python -m "
                          f"tasks.allegro_grasp_sampler --out FILE --task_config ...")
-    names = [str(s) for s in data["shapes"]]
     rows, count = [], []
     for s in config.shapes:
         r = np.flatnonzero(data["shape"] == names.index(s)) if s in names else np.zeros(0, np.int64)
@@ -78,14 +72,20 @@ def load(config) -> dict[str, np.ndarray]:
 
 def read(path: str, config) -> tuple[Any, dict[str, np.ndarray]]:
     """(``config`` with the file's physics and shapes, the file's grasps: ``FIELDS``, ``shape`` indexing those
-    shapes) of the cache ``path``, as made; ValueError: no such file."""
-    if not os.path.isfile(path):
-        raise ValueError(f"{path!r}: no such grasp cache")
-    with np.load(path) as f:
-        made, shapes = json.loads(str(f["physics"])), tuple(str(s) for s in f["shapes"])
-        grasps = {k: f[k] for k in FIELDS}
+    shapes) of the cache ``path`` (or ``"builtin"``), as made; ValueError: no such file."""
+    made, shapes, grasps = _contents(path)
     made = {k: tuple(v) if isinstance(v, list) else v for k, v in made.items()}
-    return dataclasses.replace(config, shapes=shapes, **made), grasps
+    return dataclasses.replace(config, shapes=tuple(shapes), **made), grasps
+
+
+def _contents(name: str) -> tuple[dict, list[str], dict[str, np.ndarray]]:
+    """(the physics it was made with, its shapes, its ``FIELDS``) of the cache file ``name`` (``path_of``)."""
+    path = path_of(name)
+    if not os.path.isfile(path):
+        raise ValueError(f"grasp_cache {name!r}: no such file (make one with python -m "
+                         f"tasks.allegro_grasp_sampler --out FILE)")
+    with np.load(path) as f:
+        return json.loads(str(f["physics"])), [str(s) for s in f["shapes"]], {k: f[k] for k in FIELDS}
 
 
 def draw(grasps: dict, shape, u) -> dict:

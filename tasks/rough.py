@@ -110,7 +110,8 @@ class TerrainState:
         self.levels, self.cols = curriculum.initial_cells(
             num_envs, ncol, self._rng.integers(0, c.max_init_level + 1, size=num_envs))
         self.points = terrain.scan_points(*c.scan_shape, c.scan_spacing)
-        self.commanded = np.zeros((num_envs, 2))  # the commanded path's displacement and heading this episode
+        # this episode's commanded path (curriculum.advance_commanded_path): its displacement and heading
+        self.commanded = np.zeros((num_envs, 2))
         self.commanded_heading = np.zeros(num_envs)
         self.tracking_sum = np.zeros(num_envs)
         self.command_fraction = np.array(c.command_start if c.command_curriculum else (1.0, 1.0, 1.0))
