@@ -3,7 +3,7 @@
 # (bench/compact_metrics.py) and evaluations go to $OUT. On the GPU machine, after bench/device_setup.sh:
 #   JOB_TIMEOUT=360 COMMIT=<this checkout's commit> bash bench/franka_gpu_runs.sh rlpd_peg_s0 rlpd_peg_s1
 # (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 360 in a 10-minute call: 400 ran past 560 s)
-# JOB = rlpd_peg_sN | rlpdflow_peg_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
+# JOB = rlpd_peg_sN | rlpdflow_peg_sN | rlpdflow_peg_images_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
 #       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN | rlpd_pick_images_pair_sN
 #       | rlpd_peg_images_rt_sN; SPEED (default 10) sets --speed, TOTAL (default 36000: 60 robot-minutes at 10 Hz)
 #       --total_steps (rlpdflow_peg's update is ~2x RLPD's on the CPU: TOTAL=18000 compares the two at 30 robot-minutes
@@ -11,7 +11,8 @@
 # _pair: 6 Franka + 6 UR5e robots alternating in the inventory (both kinds train and evaluate), one policy; its
 # 40-episode evaluations run on each arm (..._eval40_<step>.json the Franka, ..._ur5e_eval40_<step>.json the UR5e).
 # rlpdflow_peg: rlpd_peg's command (demonstrations, prior data, critics, flags) with SAC Flow's actor (--algo=rlpd_flow),
-# the issue-32 comparison of the two actors at the same robot time.
+# the issue-32 comparison of the two actors at the same robot time; rlpdflow_peg_images the same from images
+# (rlpd_peg_images's command with SAC Flow's actor).
 # _rt: image RLPD peg insertion in real time (--speed=1, whatever SPEED says) with --utd_mode=free (the robots never
 # wait for the learner: under the default hold the workers pause whenever the learner is behind the ratio, and a
 # paused worker's robot holds its command: 0.54 of steps late at 086aebf); episode/late_fraction in the metrics is
@@ -38,6 +39,7 @@ job() {
     sac_pick) a="experiments/sac_franka_pick.py $F --nodense_reward $S --config actor_hidden=(128,128) --config critic_hidden=(128,128)";;
     sacflow_pick) a="experiments/sacflow_franka_pick.py $F --nodense_reward $S --config actor_hidden=(128,128) --config critic_hidden=(128,128)";;
     rlpd_peg_images) a="experiments/rlpd_franka_peg.py $F $P $I --config actor_every=2";;
+    rlpdflow_peg_images) a="experiments/rlpd_franka_peg.py $F $P $I --config actor_every=2 --algo=rlpd_flow";;
     rlpd_pick_images) a="experiments/rlpd_franka_pick.py $F $I --config actor_every=20";;
     rlpd_peg_images_asym) a="experiments/rlpd_franka_peg.py $F $P $I --asymmetric --config actor_every=2";;
     rlpd_pick_images_asym) a="experiments/rlpd_franka_pick.py $F $I --asymmetric --config actor_every=20";;
