@@ -60,8 +60,10 @@ job() {
   done; wait
 }
 # DEADLINE (default 560) seconds after this script starts, whatever still runs (a training past JOB_TIMEOUT's share, an
-# evaluation) is stopped so that the archive below is written inside a 10-minute call (3 jobs' evaluations ran past it).
-( sleep "${DEADLINE:-560}"; pkill -TERM -f "unilab_jax.play" ; pkill -TERM -f "experiments/" ) & watchdog=$!
+# evaluation) is stopped so that the archive below is written inside a 10-minute call (3 jobs' evaluations ran past it);
+# what has not ended 15 s later is killed (at 2d5a972 seven jobs' shutdown ran the call past its 600 s: no archive).
+( sleep "${DEADLINE:-560}"; pkill -TERM -f "unilab_jax.play" ; pkill -TERM -f "experiments/"; sleep 15
+  pkill -KILL -f "unilab_jax.play"; pkill -KILL -f "experiments/" ) & watchdog=$!
 for j in "$@"; do job $j & done
 while sleep 30; do n=$(jobs -pr | grep -vc "^$watchdog$"); [ "$n" = 0 ] && break; for j in "$@"; do tail -c 200 $OUT/$j.log | tr '\n' ' ' | tail -c 110; echo; done; done
 wait $(jobs -p | grep -v "^$watchdog$"); kill $watchdog 2>/dev/null

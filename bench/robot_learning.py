@@ -8,7 +8,8 @@ name says ``ur5e``) becomes a record: ``arm``, ``task``, ``algo``,
 ``episodes`` and ``success`` (the success rate) from the report; ``observation`` (``images`` for the ``*_images*``
 jobs, else ``state``), ``asymmetric`` (``*_asym_*``: the critic also reads the privileged state) and ``seed``
 (``_sN``) from the job's name; ``env_steps``; ``robot_minutes`` = env steps / (control rate x 60), the control
-rate being the report's ``fps``. A record replaces the file's record of the same job, arm and env step (a record
+rate being the report's ``fps``; an empty or unfinished report (an evaluation stopped by a deadline) is skipped
+with a message. A record replaces the file's record of the same job, arm and env step (a record
 without ``arm`` is the Franka's).
 """
 
@@ -31,8 +32,12 @@ def records(folder: str, commit: str) -> list[dict]:
         m = REPORT.match(os.path.basename(path))
         if m is None:
             continue
-        with open(path) as f:
-            report = json.load(f)
+        try:
+            with open(path) as f:
+                report = json.load(f)
+        except json.JSONDecodeError:  # an evaluation stopped before it wrote its report (the call's deadline)
+            print(f"skipped {path}: not a finished report", file=sys.stderr)
+            continue
         job, step = m["job"], int(m["step"])
         out.append({"job": job, "arm": m["arm"] or "franka", "task": report["task"], "algo": report["algo"],
                     "observation": "images" if "_images" in job else "state", "asymmetric": "_asym_" in job,

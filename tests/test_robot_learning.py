@@ -22,8 +22,10 @@ def test_reports_become_records_and_a_rerun_replaces_its_own(tmp_path):
     _report(runs, "rlpd_peg_images_asym_s2_eval40_6000.json", 0.75)
     _report(runs, "rlpd_peg_s1_eval40_1200.json", 0.25, fps=20)
     (runs / "rlpd_peg_s1_summary.json").write_text("{}")  # not a report
+    (runs / "rlpd_peg_s1_eval40_2400.json").write_text("")  # an evaluation stopped before its report: skipped
     cmd = [sys.executable, SCRIPT, str(runs), "--out", str(out), "--commit", "abc"]
-    subprocess.run(cmd, check=True, capture_output=True)
+    done = subprocess.run(cmd, check=True, capture_output=True, text=True)
+    assert "rlpd_peg_s1_eval40_2400.json: not a finished report" in done.stderr
     recs = {(r["job"], r["env_steps"]): r for r in json.loads(out.read_text())}
     assert set(recs) == {("rlpd_peg_images_s0", 3003), ("rlpd_peg_images_asym_s2", 6000), ("rlpd_peg_s1", 1200)}
     img = recs[("rlpd_peg_images_s0", 3003)]
