@@ -1,7 +1,10 @@
 """The trainer's background evaluator: slow evaluations do not queue up behind a fast training loop."""
 
+import os
+import signal
 import threading
 import time
+from concurrent.futures.process import BrokenProcessPool
 
 from unilab_jax.training.evaluation import AsyncEvaluator
 
@@ -83,6 +86,45 @@ def test_an_evaluation_the_robots_interrupt_is_dropped_and_ends_no_run():
     last = ev.close()
     assert ev.interrupted == 1 and last["eval/return"] == 1.0  # the newest finished evaluation stands
     assert [s for s, _ in tr.logged] == [1]  # nothing logged for the dropped one
+
+
+class _DyingProcessTrainer(_SlowTrainer):
+    """The evaluation process died under step 2's evaluation (what the executor raises then)."""
+
+    def evaluate(self, weights, seed, stop=None):
+        if weights["step"] == 2:
+            raise BrokenProcessPool("A process in the process pool was terminated abruptly")
+        return super().evaluate(weights, seed, stop)
+
+
+def test_an_evaluation_lost_with_its_process_ends_no_run():
+    tr = _DyingProcessTrainer()
+    tr.release.set()
+    ev = AsyncEvaluator(tr)
+    _submit(ev, 1)
+    deadline = time.time() + 10
+    while not tr.logged and time.time() < deadline:
+        time.sleep(0.01)
+    _submit(ev, 2)
+    last = ev.close()  # no exception: the last finished evaluation stands
+    assert ev.lost == 1 and last["eval/return"] == 1.0 and [s for s, _ in tr.logged] == [1]
+
+
+def test_the_evaluation_process_outlives_a_signal_to_the_process_group():
+    """`timeout` and Ctrl-C signal the whole process group: the trainer stops the child through its stop event;
+    a child that died of the signal broke the pool and the run ended without its summary (issue 37's runs)."""
+    from unilab_jax.training.evaluation import EvaluationProcess, _child_ready
+
+    process = EvaluationProcess()
+    try:
+        assert process._pool.submit(_child_ready).result(timeout=60) is True  # the child is up, its initializer run
+        (pid,) = list(process._pool._processes)
+        os.kill(pid, signal.SIGTERM)
+        os.kill(pid, signal.SIGINT)
+        time.sleep(0.3)
+        assert process._pool.submit(_child_ready).result(timeout=60) is True
+    finally:
+        process.close()
 
 
 def test_an_evaluation_process_gives_the_thread_s_result_and_stops_when_asked(tmp_path):

@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 import numpy as np
@@ -206,6 +208,11 @@ _CHILD_STOP: Any = None  # in an EvaluationProcess's child: the parent's stop ev
 
 def _child_init(stop: Any) -> None:
     global _CHILD_STOP
+    # Ctrl-C and `timeout`/`kill -TERM -<pgid>` reach the whole process group: the trainer handles them and ends
+    # this child's episodes through ``stop`` (as it stops the rollout workers, runtime.worker.worker_main); a
+    # child killed here broke the trainer's pool and ended the run without its summary.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _CHILD_STOP = stop
 
 
@@ -364,7 +371,8 @@ class AsyncEvaluator:
     the run for minutes); ``skipped`` counts the replaced ones. ``close(cancel=True)`` (an interrupted
     run) drops the waiting one. An evaluation that robot tasks interrupt more often than ``run_episodes``
     starts over (protective stops, lost robots) is dropped with a warning (``interrupted`` counts them): it
-    ends no run. ``in_process``: the episodes run in an :class:`EvaluationProcess` (the thread only waits).
+    ends no run, nor does an evaluation process that died (``lost`` counts what it took). ``in_process``: the
+    episodes run in an :class:`EvaluationProcess` (the thread only waits).
     """
 
     def __init__(self, trainer: Any, stop: threading.Event | None = None, in_process: bool = False):
@@ -377,6 +385,7 @@ class AsyncEvaluator:
         self._futures: list[Any] = []
         self.skipped = 0
         self.interrupted = 0  # evaluations the robots interrupted past MAX_EVAL_RESTARTS (dropped, logged)
+        self.lost = 0  # evaluations lost with a dead evaluation process (logged; the run goes on)
 
     def submit(self, weights: dict, counters: dict[str, int], wall_s: float) -> None:
         if self._futures and self._futures[-1].cancel():  # still waiting: replace it with the newer snapshot
@@ -397,6 +406,10 @@ class AsyncEvaluator:
             self.interrupted += 1
             log.warning("evaluation at env step %d dropped: the robots interrupted it %d times (%s)",
                         counters["env_steps"], MAX_EVAL_RESTARTS + 1, e)
+            return None
+        except BrokenProcessPool as e:  # the evaluation process died (killed, out of memory): its evaluations are lost
+            self.lost += 1
+            log.error("evaluation at env step %d lost: the evaluation process is gone (%s)", counters["env_steps"], e)
             return None
         result.update({"eval/wall_s": wall_s, "eval/done_wall_s": time.time() - tr.t0,
                        "eval/skipped": float(self.skipped)})
