@@ -9,6 +9,10 @@ duration: every robot ends about one episode in it), thinned to at most ``--poin
 ``--png`` also plots them (matplotlib, the dev extra) with the goal line at 70% of the top level::
 
     python bench/terrain_curves.py bench/results/h100/phase3/terrain/metrics --out curves.json --png curves.png
+
+A run is named ``<config>_s<seed>``, or ``--label STEM=TEXT`` names the run of the file ``STEM.jsonl[.gz]`` (runs of
+one configuration and seed at several commits: each its own curve; docs/terrain_levels.png is drawn so, the labels
+in docs/dev/GPU_RUNS.md).
 """
 
 from __future__ import annotations
@@ -65,9 +69,11 @@ def curve(path: str, points: int = 400) -> dict[str, Any]:
             "terrain_level_top": top, "window_s": WINDOW_S}
 
 
-def run_name(path: str) -> str:
-    """``<config>_s<seed>`` of ``<config>_s<seed>_<date>_<time>.jsonl[.gz]``."""
+def run_name(path: str, labels: dict[str, str] | None = None) -> str:
+    """``labels[stem]``, else ``<config>_s<seed>`` of ``<config>_s<seed>_<date>_<time>.jsonl[.gz]``."""
     stem = os.path.basename(path).split(".jsonl")[0]
+    if labels and stem in labels:
+        return labels[stem]
     return stem.rsplit("_", 2)[0] if stem.count("_") >= 3 else stem
 
 
@@ -104,12 +110,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="the curves' JSON")
     ap.add_argument("--png", default="", help="also plot them here (needs matplotlib)")
     ap.add_argument("--points", type=int, default=400)
+    ap.add_argument("--label", action="append", default=[], metavar="STEM=TEXT",
+                    help="name the run of metrics file STEM.jsonl[.gz] TEXT (repeatable)")
     args = ap.parse_args(argv)
     files = find(args.paths)
-    if not files or args.points < 2:
-        print("error: no metrics files found" if not files else "error: --points must be at least 2", file=sys.stderr)
+    labels = dict(item.split("=", 1) for item in args.label if "=" in item)
+    error = ("no metrics files found" if not files else "--points must be at least 2" if args.points < 2
+             else "--label takes STEM=TEXT" if len(labels) != len(args.label) else "")
+    if error:
+        print(f"error: {error}", file=sys.stderr)
         return 2
-    curves = {run_name(p): curve(p, args.points) for p in files}
+    curves = {run_name(p, labels): curve(p, args.points) for p in files}
     curves = {k: v for k, v in curves.items() if v["step"]}
     with open(args.out, "w") as f:
         json.dump(curves, f)
