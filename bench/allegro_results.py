@@ -9,7 +9,9 @@ the trainer's final one) gives ``rotation_rad_s`` (with ``rotation_rad_s_se``, i
 episodes, where the run logged it), ``rotation_episode_rad_s`` (the yaw turned over the whole time limit per
 second, 0 after a fall: ``tasks/allegro_metric.py``; None for runs from before it was logged), ``time_to_fall``
 (fraction of the episode), ``rotate_reward`` (mean per-step rotation term) and ``eval_episodes``; ``env_steps``,
-``wall_s`` and ``interrupted`` (stopped by a signal or time limit before its step budget) are the run's; ``curve``
+``wall_s`` and ``interrupted`` (stopped by a signal or time limit before its step budget) are the run's (a run that
+ended without ``summary.json``: its last evaluation row and its last training row's step and wall time,
+``interrupted`` and ``no_summary`` true); ``curve``
 lists every evaluation as [env steps, rotation rate, time to fall]; ``final_evals`` the large evaluations of its last
 checkpoints where the logdir holds them (``final_eval_<step>.json``: ``python -m unilab_jax.play --checkpoint <step>
 --episodes N``'s report, written there by ``bench/p37_allegro.sh FINAL_EVAL=N``), each {checkpoint, episodes,
@@ -37,16 +39,27 @@ GOAL_RATE, GOAL_TTF, GOAL_STUDENT = 0.2, 0.8, 0.8
 
 def read_run(logdir: str) -> dict:
     """The record's measured fields from a run's ``summary.json`` and ``metrics.jsonl``."""
-    with open(os.path.join(logdir, "summary.json")) as f:
-        summary = json.load(f)
-    if "eval/rotation_rate" not in summary:
-        raise ValueError(f"{logdir}: summary.json has no final evaluation (eval/rotation_rate)")
-    curve = []
+    curve, last_eval, last_row = [], None, {}
     with open(os.path.join(logdir, "metrics.jsonl")) as f:
         for line in f:
             row = json.loads(line)
+            if "time/wall_s" in row:
+                last_row = row
             if "eval/rotation_rate" in row:
                 curve.append([row["step"], row["eval/rotation_rate"], row["eval/time_to_fall"]])
+                last_eval = row
+    path = os.path.join(logdir, "summary.json")
+    if os.path.exists(path):
+        with open(path) as f:
+            summary = json.load(f)
+    elif last_eval is not None:  # a run that ended without its summary: its last evaluation, flagged
+        summary = {**last_eval, "env_steps": last_row.get("step", last_eval["step"]),
+                   "wall_s": last_row.get("time/wall_s", last_eval.get("eval/wall_s")),
+                   "interrupted": True, "no_summary": True}
+    else:
+        raise ValueError(f"{logdir}: no summary.json and no evaluation in metrics.jsonl")
+    if "eval/rotation_rate" not in summary:
+        raise ValueError(f"{logdir}: summary.json has no final evaluation (eval/rotation_rate)")
     finals = []
     for name in os.listdir(logdir):
         m = re.fullmatch(r"final_eval_(\d+)\.json", name)
@@ -63,6 +76,7 @@ def read_run(logdir: str) -> dict:
             "time_to_fall": summary["eval/time_to_fall"], "rotate_reward": summary["eval/rotate_reward"],
             "eval_episodes": summary.get("eval/episodes"), "env_steps": summary["env_steps"],
             "wall_s": summary["wall_s"], "interrupted": summary.get("interrupted"), "curve": curve,
+            **({"no_summary": True} if summary.get("no_summary") else {}),
             **({"final_evals": finals, "neighbour_gap_rad_s": gap} if finals else {})}
 
 

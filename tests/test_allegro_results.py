@@ -78,3 +78,27 @@ def test_final_evaluations_judge_the_role_and_give_the_neighbour_gap(tmp_path, c
     line = capsys.readouterr().out.splitlines()[-1]
     assert "rate 0.310 rad/s" in line and "768+ episodes" in line and "0.020 rad/s apart" in line
     assert "time to fall 0.85" in line and "goal met" in line
+
+
+def test_a_run_without_its_summary_is_read_from_its_last_evaluation(tmp_path):
+    """A run that ended without summary.json (the evaluation process killed by a signal, before 0c139d2): the last
+    evaluation row gives the record, the last training row its steps and wall time, flagged ``no_summary``."""
+    path = str(tmp_path / "t")
+    os.makedirs(path)
+    with open(os.path.join(path, "metrics.jsonl"), "w") as f:
+        for step, rate in ((1000, 0.1), (2000, 0.25)):
+            f.write(json.dumps({"step": step, "time/wall_s": step / 10, "loss/x": 1.0}) + "\n")
+            f.write(json.dumps({"step": step, "eval/rotation_rate": rate, "eval/time_to_fall": 0.7,
+                                "eval/rotate_reward": rate / 2, "eval/episodes": 128.0}) + "\n")
+        f.write(json.dumps({"step": 2500, "time/wall_s": 321.0, "loss/x": 0.5}) + "\n")
+    rec = ar.read_run(path)
+    assert (rec["rotation_rad_s"], rec["time_to_fall"], rec["env_steps"], rec["wall_s"]) == (0.25, 0.7, 2500, 321.0)
+    assert rec["interrupted"] is True and rec["no_summary"] is True and len(rec["curve"]) == 2
+    os.remove(os.path.join(path, "metrics.jsonl"))
+    open(os.path.join(path, "metrics.jsonl"), "w").close()
+    try:
+        ar.read_run(path)
+    except ValueError as e:
+        assert "no summary.json and no evaluation" in str(e)
+    else:
+        raise AssertionError("a run with neither a summary nor an evaluation gave a record")
