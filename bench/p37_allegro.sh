@@ -14,7 +14,8 @@
 # turns objects at 0.31 rad/s, past the 0.2 goal, but drops them 57% into an episode against the 0.8 goal, so the
 # reward is moved toward keeping the object); hold (steady, and HORA's object-velocity penalty back at LINVEL
 # (default -0.3; the recipes set it to 0): from the grasp cache the teachers drop objects as early as a scripted
-# gait that pushes them off the palm, docs/RESULTS.md); custom (EXTRA's flags). EXTRA is appended to every setting.
+# gait that pushes them off the palm, docs/RESULTS.md); held (hold, the episodes starting from the grasps that keep
+# their object through a still episode: grasp_cache=held, tasks/allegro_grasps.py); custom (EXTRA's flags). EXTRA is appended to every setting.
 set -u
 OUT=${OUT:-/tmp/p37}; mkdir -p "$OUT/runs"
 ROBOTS="wonik_allegro" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
@@ -32,8 +33,9 @@ case $SETTING in
   base) S="" ;; fixed_lr) S=$fixed ;; std) S=$std ;; grasp) S=$grasp ;; all) S=$all ;;
   steady) S=$steady ;;
   hold) S="$steady --task_config=scale_object_linvel=${LINVEL:--0.3}" ;;
+  held) S="${steady/grasp_cache=builtin/grasp_cache=held} --task_config=scale_object_linvel=${LINVEL:--0.3}" ;;
   custom) S="" ;;
-  *) echo "SETTING must be base, fixed_lr, std, grasp, all, steady, hold or custom"; exit 2 ;;
+  *) echo "SETTING must be base, fixed_lr, std, grasp, all, steady, hold, held or custom"; exit 2 ;;
 esac
 common="--num_workers=$workers --envs_per_worker=${ENVS:-64} --eval_every=${EVAL_EVERY:-1000000} \
   --eval_envs=${EVAL_ENVS:-128} $S ${EXTRA:-} ${RESUME:+--resume}"

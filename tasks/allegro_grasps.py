@@ -7,10 +7,13 @@ A cache file (``.npz``) records the physics it was made with (``PHYSICS_FIELDS``
 ``load`` refuses a config whose physics differ, and keeps the grasps of ``config.shapes`` (grouped by shape).
 ``"builtin"`` is ``tasks/data/allegro_grasps.npz``, made for the default physics by
 ``python -m tasks.allegro_grasp_sampler --out tasks/data/allegro_grasps.npz --candidates 12288`` (841 grasps:
-417 cylinders, 424 boxes). ``draw`` (shim-written) picks grasps for the CPU task and ``tasks/mjx_allegro.py``
-alike: a shape uniform over ``config.shapes``, then one of its grasps uniformly. The object of an episode is the
-grasp's (its size, mass, friction and centre of mass were drawn from the task's ranges, then kept only if held:
-a selected distribution, not the uniform one).
+417 cylinders, 424 boxes); ``"held"`` is ``tasks/data/allegro_grasps_held.npz``, its 733 grasps (366 cylinders, 367
+boxes) that keep their object for a whole still episode (``python -m tasks.allegro_grasp_sampler --from
+tasks/data/allegro_grasps.npz --hold_steps 400 --out tasks/data/allegro_grasps_held.npz``: 13% of the builtin
+cache's starts lose the object with no action at all, 1% of these). ``draw`` (shim-written) picks grasps for the
+CPU task and ``tasks/mjx_allegro.py`` alike: a shape uniform over ``config.shapes``, then one of its grasps
+uniformly. The object of an episode is the grasp's (its size, mass, friction and centre of mass were drawn from
+the task's ranges, then kept only if held: a selected distribution, not the uniform one).
 
 Measured with the builtin cache (64 envs, zero actions, so the targets stay the grasp's): at reset every object
 is touched by >= 2 fingers (52 by 2, 12 by 3); after 5 s 46 still by >= 2; time to fall 0.89 over the 400 steps
@@ -29,6 +32,7 @@ import numpy as np
 from unilab_jax import xp as shim
 
 BUILTIN = os.path.join(os.path.dirname(__file__), "data", "allegro_grasps.npz")
+NAMED = {"builtin": BUILTIN, "held": os.path.join(os.path.dirname(__file__), "data", "allegro_grasps_held.npz")}
 PHYSICS_FIELDS = ("ctrl_dt", "sim_dt", "kp", "kd", "torque_limit", "solver_iterations", "ls_iterations",
                   "integrator", "fall_radius", "domain_randomization", "dr_scale", "dr_mass", "dr_com_offset",
                   "dr_friction")
@@ -41,7 +45,8 @@ def physics(config) -> dict:
 
 
 def path_of(name: str) -> str:
-    return BUILTIN if name == "builtin" else name
+    """The file of a cache name: a named cache (``NAMED``) or a path."""
+    return NAMED.get(name, name)
 
 
 def load(config) -> dict[str, np.ndarray]:
@@ -72,7 +77,7 @@ def load(config) -> dict[str, np.ndarray]:
 
 def read(path: str, config) -> tuple[Any, dict[str, np.ndarray]]:
     """(``config`` with the file's physics and shapes, the file's grasps: ``FIELDS``, ``shape`` indexing those
-    shapes) of the cache ``path`` (or ``"builtin"``), as made; ValueError: no such file."""
+    shapes) of the cache ``path`` (or a named one: ``NAMED``), as made; ValueError: no such file."""
     made, shapes, grasps = _contents(path)
     made = {k: tuple(v) if isinstance(v, list) else v for k, v in made.items()}
     return dataclasses.replace(config, shapes=tuple(shapes), **made), grasps

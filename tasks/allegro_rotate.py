@@ -139,7 +139,7 @@ class AllegroRotateConfig:
     # Added to the reset targets (not the joints) of the index, middle and ring fingers' medial and distal
     # joints (rad): the fingers start pressing on the object's top edge instead of resting at it.
     reset_press: float = 0.0
-    # "": the palm start above; "builtin" or a .npz path: episodes start from a cached grasp (HORA's start,
+    # "": the palm start above; "builtin", "held" or a .npz path: episodes start from a cached grasp (HORA's start,
     # tasks/allegro_grasps.py), which sets the hand, its targets and the object (reset_press must be 0).
     grasp_cache: str = ""
     fall_radius: float = 0.09
