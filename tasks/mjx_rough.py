@@ -81,7 +81,9 @@ class RoughMjx:
             i = jnp.arange(n, dtype=jnp.int32)
             levels, cols = L // 2 + (i // C) % (L - L // 2), i % C
         else:
-            draws = jax.random.randint(key, (n,), 0, self.rough_config.max_init_level + 1, jnp.int32)
+            rc = self.rough_config
+            draws = (jax.random.choice(key, L, (n,), p=jnp.asarray(rough.level_probabilities(rc))).astype(jnp.int32)
+                     if rc.init_level_weights else jax.random.randint(key, (n,), 0, rc.max_init_level + 1, jnp.int32))
             levels, cols = curriculum.initial_cells(n, C, draws)
         return {**extra, "level": levels, "col": cols, "commanded": jnp.zeros((n, 2)),
                 "commanded_heading": jnp.zeros((n,))}

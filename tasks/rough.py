@@ -25,13 +25,16 @@ A task composes one ``TerrainState`` (``tasks/go1_rough.py``: ``go1_joystick_rou
   ``tracking_error_<type>``, ``fall_rate_<type>``).
 
 Each worker keeps its own curricula (levels of its envs, command fraction); every worker builds the same terrain
-from ``terrain_seed``. The initial levels come from the task seed: U{0, ..., max_init_level}.
+from ``terrain_seed``. The initial levels come from the task seed: U{0, ..., max_init_level}, or from
+``init_level_weights`` (a resumed run: the level distribution its robots stopped at, ``resumed_level_weights``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import os
 from typing import Any
 
 import mujoco
@@ -58,6 +61,10 @@ class RoughConfig:
     terrain_step_height: tuple[float, float] = (0.05, 0.23)
     terrain_obstacle_height: tuple[float, float] = (0.05, 0.25)
     max_init_level: int = 4
+    # weights over the levels (one per level) for the initial levels instead of U{0, ..., max_init_level}: a run
+    # resumed from its checkpoint starts its robots where its population stood (``resumed_level_weights``, set by
+    # ``--resume``), since the workers' curricula are not in the checkpoint
+    init_level_weights: tuple[float, ...] = ()
     terrain_curriculum: bool = True
     # the heightfield's contact solref; () keeps the floor plane's (0.02, 1). A foot that sinks deeper than its
     # collision sphere's radius meets the side faces of the heightfield's prisms (horizontal contact normals on flat
@@ -84,6 +91,41 @@ class SmallQuadrupedRough(RoughConfig):
     terrain_obstacle_height: tuple[float, float] = (0.02, 0.14)
 
 
+def check_level_weights(c: RoughConfig) -> None:
+    """ValueError unless ``init_level_weights`` is () or one weight >= 0 per level with a positive sum."""
+    w = c.init_level_weights
+    if w and (len(w) != c.terrain_levels or min(w) < 0 or sum(w) <= 0):
+        raise ValueError(f"init_level_weights must be () or {c.terrain_levels} weights >= 0 with a positive sum, "
+                         f"got {w}")
+
+
+def level_probabilities(c: RoughConfig) -> np.ndarray:
+    """``init_level_weights`` normalised (float64, summing to 1)."""
+    w = np.asarray(c.init_level_weights, dtype=np.float64)
+    return w / w.sum()
+
+
+def resumed_level_weights(metrics_path: str, num_levels: int, window_s: float = 20.0) -> tuple[float, ...]:
+    """The level distribution of a run's robots when it stopped: the mean of its training rows' level histogram
+    (``episode/terrain_level_<k>``, the share of the episodes ended since the previous row) over the last
+    ``window_s`` seconds of ``time/wall_s`` (one episode: every robot ends about one in it); () when the file holds no
+    such row or another number of levels."""
+    keys = [f"episode/terrain_level_{k}" for k in range(num_levels)]
+    rows = []
+    if os.path.exists(metrics_path):
+        with open(metrics_path) as f:
+            for line in f:
+                r = json.loads(line)
+                if "time/wall_s" in r and keys[0] in r:
+                    rows.append(r)
+    if not rows or f"episode/terrain_level_{num_levels}" in rows[-1] or keys[-1] not in rows[-1]:
+        return ()
+    end = max(r["time/wall_s"] for r in rows)
+    last = [r for r in rows if r["time/wall_s"] >= end - window_s]
+    mean = [sum(r[k] for r in last) / len(last) for k in keys]
+    return tuple(round(m, 4) for m in mean) if sum(mean) > 0 else ()
+
+
 def terrain_config(c: RoughConfig) -> terrain.TerrainConfig:
     return terrain.TerrainConfig(
         levels=c.terrain_levels, columns=tuple(c.terrain_columns), cell_size=c.terrain_cell_size,
@@ -99,6 +141,7 @@ class TerrainState:
         c = config
         if not 0 <= c.max_init_level < c.terrain_levels:
             raise ValueError(f"max_init_level {c.max_init_level} must lie in [0, terrain_levels)")
+        check_level_weights(c)
         if len(c.terrain_solref) not in (0, 2):
             raise ValueError(f"terrain_solref must be () or (timeconst, dampratio), got {c.terrain_solref}")
         self.config, self.num_envs = c, num_envs
@@ -107,8 +150,9 @@ class TerrainState:
         self.episode_length, self.ctrl_dt = episode_length, ctrl_dt
         self._rng = np.random.default_rng([seed, 0x7E55A1])
         ncol = len(self.terrain.columns)
-        self.levels, self.cols = curriculum.initial_cells(
-            num_envs, ncol, self._rng.integers(0, c.max_init_level + 1, size=num_envs))
+        draws = (self._rng.choice(c.terrain_levels, size=num_envs, p=level_probabilities(c))
+                 if c.init_level_weights else self._rng.integers(0, c.max_init_level + 1, size=num_envs))
+        self.levels, self.cols = curriculum.initial_cells(num_envs, ncol, draws)
         self.points = terrain.scan_points(*c.scan_shape, c.scan_spacing)
         # this episode's commanded path (curriculum.advance_commanded_path): its displacement and heading
         self.commanded = np.zeros((num_envs, 2))

@@ -3,6 +3,8 @@ levels at reset, the height scan reaches the critic, the metrics and the evaluat
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
 
 import numpy as np
@@ -196,3 +198,45 @@ def test_the_stiffer_terrain_contact_keeps_feet_off_the_heightfields_side_faces(
     assert _tilted_contact_fraction({}) < 0.3 < _tilted_contact_fraction({"terrain_solref": (0.02, 1.0)})
     with pytest.raises(ValueError, match="terrain_solref"):
         tasks.make("go1_joystick_rough", 1, seed=0, overrides={**CLEAN, "terrain_solref": (0.01,)})
+
+
+def test_a_resumed_run_starts_its_robots_at_the_level_distribution_it_stopped_at(tmp_path):
+    """``resumed_level_weights``: the mean level histogram of the last 20 s of training rows (hand-computed below);
+    ``init_level_weights`` then draws the initial levels from it; bad weights are refused."""
+    rows = [{"step": 1, "time/wall_s": 10.0, **{f"episode/terrain_level_{k}": float(k == 0) for k in range(3)}},
+            {"step": 2, "time/wall_s": 50.0, "episode/terrain_level_0": 0.0, "episode/terrain_level_1": 0.5,
+             "episode/terrain_level_2": 0.5},
+            {"step": 2, "eval/return": 1.0},
+            {"step": 3, "time/wall_s": 65.0, "episode/terrain_level_0": 0.0, "episode/terrain_level_1": 0.0,
+             "episode/terrain_level_2": 1.0}]
+    path = tmp_path / "metrics.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert rough.resumed_level_weights(str(path), 3) == (0.0, 0.25, 0.75)  # rows at 50 and 65 s, not the one at 10
+    assert rough.resumed_level_weights(str(path), 4) == ()  # another grid
+    assert rough.resumed_level_weights(str(tmp_path / "none.jsonl"), 3) == ()
+    config = rough.RoughConfig(terrain_levels=3, terrain_columns=("rough",), terrain_cell_size=2.0,
+                               terrain_border=2.0, terrain_platform=1.0, max_init_level=0,
+                               init_level_weights=(0.0, 0.25, 0.75))
+    state = rough.TerrainState(config, num_envs=400, seed=0, ctrl_dt=0.02, episode_length=10)
+    counts = np.bincount(state.levels, minlength=3)
+    assert counts[0] == 0 and 70 <= counts[1] <= 130 and counts[1] + counts[2] == 400  # binomial sd ~8.7
+    for bad in ((1.0, 1.0), (0.0, 0.0, 0.0), (1.0, -0.5, 1.0)):
+        with pytest.raises(ValueError, match="init_level_weights"):
+            rough.TerrainState(dataclasses.replace(config, init_level_weights=bad), num_envs=2, seed=0,
+                               ctrl_dt=0.02, episode_length=10)
+
+
+def test_resume_sets_the_initial_levels_from_the_run_s_metrics_unless_given(tmp_path):
+    from unilab_jax.apps import api
+
+    (tmp_path / "checkpoints").mkdir()
+    levels = {f"episode/terrain_level_{k}": float(k == 7) for k in range(10)}
+    (tmp_path / "metrics.jsonl").write_text(json.dumps({"step": 5, "time/wall_s": 30.0, **levels}) + "\n")
+    *_, overrides = api.build("fastsac", "go1_joystick_rough", logdir=str(tmp_path), total_steps=1000, resume=True)
+    assert overrides["init_level_weights"] == tuple(float(k == 7) for k in range(10))
+    given = (1.0,) + (0.0,) * 9
+    *_, overrides = api.build("fastsac", "go1_joystick_rough", logdir=str(tmp_path), total_steps=1000, resume=True,
+                              task_config={"init_level_weights": given})
+    assert overrides["init_level_weights"] == given  # the user's choice stands
+    *_, overrides = api.build("fastsac", "go1_joystick_rough", logdir=str(tmp_path), total_steps=1000)
+    assert "init_level_weights" not in overrides  # a new run starts at the initial levels

@@ -10,6 +10,8 @@ compilation (forward + transition of Go1 on 4 envs, ~30 s on the 2-core VM); the
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -135,6 +137,13 @@ def test_spawn_heights_and_evaluation_cells_match_cpu(name, go1, g1):
     training = env.init_extra(jax.random.PRNGKey(0), {}, 2 * M)
     assert int(training["level"].max()) <= task.config.max_init_level
     np.testing.assert_array_equal(np.asarray(training["col"]), [0, 0, 1, 2, 3, 4, 5, 6])
+    saved = env.rough_config  # a resumed run's level weights (rough.resumed_level_weights): only levels 6 and 9
+    env.rough_config = dataclasses.replace(saved, init_level_weights=(0,) * 6 + (0.5, 0, 0, 0.5))
+    try:
+        resumed = env.init_extra(jax.random.PRNGKey(1), {}, 64)
+    finally:
+        env.rough_config = saved
+    assert set(np.asarray(resumed["level"]).tolist()) == {6, 9}
 
 
 def test_terrain_curriculum_at_episode_end_matches_cpu(go1):

@@ -294,6 +294,15 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
     logdir = opts.logdir or os.path.join("runs", f"{algo}_{task_name}_s{opts.seed}")
     if opts.resume and not os.path.isdir(os.path.join(logdir, "checkpoints")):
         raise FlagError(f"--resume: no checkpoints under {logdir!r}")
+    if opts.resume and hasattr(task_config, "init_level_weights") and "init_level_weights" not in task_overrides:
+        # the workers' terrain curricula are not in the checkpoint: the resumed robots start at the levels the
+        # run's robots stood at when it stopped (its metrics' last level histogram), not at the initial levels
+        from tasks import rough
+
+        weights = rough.resumed_level_weights(os.path.join(logdir, "metrics.jsonl"), task_config.terrain_levels)
+        if weights:
+            task_overrides["init_level_weights"] = weights
+            print(f"--resume: terrain levels drawn from the run's last level distribution {weights}", flush=True)
     try:
         os.makedirs(logdir, exist_ok=True)
     except OSError as e:
