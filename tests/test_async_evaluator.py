@@ -6,6 +6,8 @@ import threading
 import time
 from concurrent.futures.process import BrokenProcessPool
 
+import pytest
+
 from unilab_jax.training.evaluation import AsyncEvaluator
 
 
@@ -63,19 +65,30 @@ def test_close_without_evaluations_returns_nothing():
     assert AsyncEvaluator(_SlowTrainer()).close() == {}
 
 
-class _InterruptingTrainer(_SlowTrainer):
-    """Robots that make protective stops: the evaluation of step 2 is interrupted past its restarts."""
+class _FailingTrainer(_SlowTrainer):
+    """Step 2's evaluation fails with ``error`` (robots that make protective stops past the restarts; the evaluation
+    process dying under it, what the executor raises then)."""
+
+    def __init__(self, error):
+        super().__init__()
+        self.error = error
 
     def evaluate(self, weights, seed, stop=None):
-        from tasks.base import StepInterrupted
-
         if weights["step"] == 2:
-            raise StepInterrupted("tcp://robot: RobotEstopped: protective stop", None, None)
+            raise self.error
         return super().evaluate(weights, seed, stop)
 
 
-def test_an_evaluation_the_robots_interrupt_is_dropped_and_ends_no_run():
-    tr = _InterruptingTrainer()
+def _interrupted():
+    from tasks.base import StepInterrupted
+
+    return StepInterrupted("tcp://robot: RobotEstopped: protective stop", None, None)
+
+
+@pytest.mark.parametrize("error, counter", [(_interrupted, "interrupted"),
+                                            (lambda: BrokenProcessPool("terminated abruptly"), "lost")])
+def test_an_evaluation_that_fails_is_dropped_and_ends_no_run(error, counter):
+    tr = _FailingTrainer(error())
     tr.release.set()
     ev = AsyncEvaluator(tr)
     _submit(ev, 1)
@@ -83,31 +96,9 @@ def test_an_evaluation_the_robots_interrupt_is_dropped_and_ends_no_run():
     while not tr.logged and time.time() < deadline:  # step 1 done before step 2 is submitted (not replaced)
         time.sleep(0.01)
     _submit(ev, 2)
-    last = ev.close()
-    assert ev.interrupted == 1 and last["eval/return"] == 1.0  # the newest finished evaluation stands
+    last = ev.close()  # no exception: the newest finished evaluation stands
+    assert getattr(ev, counter) == 1 and last["eval/return"] == 1.0
     assert [s for s, _ in tr.logged] == [1]  # nothing logged for the dropped one
-
-
-class _DyingProcessTrainer(_SlowTrainer):
-    """The evaluation process died under step 2's evaluation (what the executor raises then)."""
-
-    def evaluate(self, weights, seed, stop=None):
-        if weights["step"] == 2:
-            raise BrokenProcessPool("A process in the process pool was terminated abruptly")
-        return super().evaluate(weights, seed, stop)
-
-
-def test_an_evaluation_lost_with_its_process_ends_no_run():
-    tr = _DyingProcessTrainer()
-    tr.release.set()
-    ev = AsyncEvaluator(tr)
-    _submit(ev, 1)
-    deadline = time.time() + 10
-    while not tr.logged and time.time() < deadline:
-        time.sleep(0.01)
-    _submit(ev, 2)
-    last = ev.close()  # no exception: the last finished evaluation stands
-    assert ev.lost == 1 and last["eval/return"] == 1.0 and [s for s, _ in tr.logged] == [1]
 
 
 def test_the_evaluation_process_outlives_a_signal_to_the_process_group():
