@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
 
 from tasks.base import TaskSpec
 from unilab_jax import nets
@@ -37,7 +38,7 @@ def _batch(weights: dict, seed: int) -> dict:
 
 def _run(updates: int, **overrides) -> list[dict]:
     config = ppo.PPOConfig(actor_hidden=(16,), critic_hidden=(16,), num_epochs=2, num_minibatches=2, **overrides)
-    learner = Learner(config, SPEC)
+    learner = Learner(config, SPEC, compiler_options=FAST_COMPILE)
     state = learner.init(jax.random.PRNGKey(0))
     rows = []
     for i in range(updates):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
 
 from tasks.base import TaskSpec
 from unilab_jax import algos, nets
@@ -36,7 +37,11 @@ def test_delayed_actor_and_ensemble(name):
     decl = algos.get(name)
     config = decl.Config(actor_hidden=(16,), critic_hidden=(16,), batch_size=B, updates_per_call=U, num_critics=5,
                          actor_every=U + 1)
-    learner = algos.make_learner(name, "jax", config, SPEC)
+    from unilab_jax.algos.offpolicy import learner_jax
+
+    assert type(algos.make_learner(name, "jax", config, SPEC)) is learner_jax.SACFamilyLearner
+    # The registry's learner, compiled with XLA's fast-compile options (tests/compile_options.py: ~14 -> ~5 CPU-s)
+    learner = learner_jax.SACFamilyLearner(decl, config, SPEC, compiler_options=FAST_COMPILE)
     noise_dim, target_entropy, actor_kind = ACTORS[name]
     assert (learner.noise_dim, learner.critic_noise_shape, learner.target_entropy) == (noise_dim, (5,), target_entropy)
     state = learner.init(jax.random.PRNGKey(0))

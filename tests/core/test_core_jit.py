@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from compile_options import FAST_COMPILE
 from core_cases import CASE_IDS, CASES
 from core_helpers import put
 
@@ -22,7 +23,7 @@ def test_jitted_kernel_traces_once(case):
     def kernel(*arrays):
         return case.fn(*arrays, **static)
 
-    jitted = jax.jit(chex.assert_max_traces(kernel, n=1))
+    jitted = jax.jit(chex.assert_max_traces(kernel, n=1), compiler_options=FAST_COMPILE)
     for seed in (0, 1, 2):  # new values, same shapes: no retrace
         args = put(jx, case.make(np.random.default_rng(seed))[0])
         compiled, eager = jitted(*args), case.fn(*args, **static)

@@ -15,6 +15,7 @@ import pytest
 
 mx = pytest.importorskip("mlx.core")
 
+from compile_options import FAST_COMPILE  # noqa: E402
 from mlx_helpers import assert_runs_without_jax  # noqa: E402
 from mlx_helpers import leaf_errors as _leaf_errors  # noqa: E402
 
@@ -69,7 +70,7 @@ def _setup(use_vtrace: bool, config: ppo.PPOConfig):
 
     from unilab_jax.algos.ppo.learner_jax import Learner as JaxLearner
 
-    jl = JaxLearner(config, SPEC, use_vtrace=use_vtrace)
+    jl = JaxLearner(config, SPEC, use_vtrace=use_vtrace, compiler_options=FAST_COMPILE)
     ml = mlx_ppo.Learner(config, SPEC, use_vtrace=use_vtrace)
     js = jl.init(jax.random.PRNGKey(0))
     warm = _batch(1, nets.to_numpy(JaxLearner.weights(js)))

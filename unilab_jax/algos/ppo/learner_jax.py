@@ -50,16 +50,18 @@ class Learner:
     minibatches, KL-adaptive learning rate, normalizers) in one place: ``init_params``,
     ``init_opt_state``, ``actor`` (what the policy sees), ``loss`` (e.g. plus an auxiliary loss),
     ``apply_gradients`` (e.g. a second optimizer), ``extra_fields`` (batch fields the loss needs
-    besides PPO's) and ``weights``.
+    besides PPO's) and ``weights``. ``compiler_options`` go to the update's ``jax.jit`` (as the off-policy
+    learners'; e.g. XLA's fast-compile options for tests).
     """
 
     extra_fields: tuple[str, ...] = ()
     actor = staticmethod(ppo._actor)
 
-    def __init__(self, config: ppo.PPOConfig, spec: TaskSpec, use_vtrace: bool = False):
+    def __init__(self, config: ppo.PPOConfig, spec: TaskSpec, use_vtrace: bool = False,
+                 compiler_options: dict | None = None):
         self.config, self.spec, self.use_vtrace = config, spec, use_vtrace
         self.tx = make_optimizer(config)
-        self.update = jax.jit(self.traced_update, donate_argnums=DONATE_STATE)
+        self.update = jax.jit(self.traced_update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
 
     def traced_update(self, state: Any, batch: dict) -> tuple[Any, dict]:
         """The pure update as this learner compiles it (float32 throughout; ``training.sharding`` compiles this
