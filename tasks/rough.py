@@ -105,11 +105,11 @@ def level_probabilities(c: RoughConfig) -> np.ndarray:
     return w / w.sum()
 
 
-def resumed_level_weights(metrics_path: str, num_levels: int, window_s: float = 20.0) -> tuple[float, ...]:
+def resumed_level_weights(metrics_path: str, num_levels: int, window_s: float) -> tuple[float, ...]:
     """The level distribution of a run's robots when it stopped: the mean of its training rows' level histogram
     (``episode/terrain_level_<k>``, the share of the episodes ended since the previous row) over the last
-    ``window_s`` seconds of ``time/wall_s`` (one episode: every robot ends about one in it); () when the file holds no
-    such row or another number of levels."""
+    ``window_s`` seconds of ``time/wall_s`` (the caller passes one episode's duration: every robot ends about one in
+    it); () when the file holds no such row or another number of levels."""
     keys = [f"episode/terrain_level_{k}" for k in range(num_levels)]
     rows = []
     if os.path.exists(metrics_path):

@@ -201,7 +201,8 @@ def test_the_stiffer_terrain_contact_keeps_feet_off_the_heightfields_side_faces(
 
 
 def test_a_resumed_run_starts_its_robots_at_the_level_distribution_it_stopped_at(tmp_path):
-    """``resumed_level_weights``: the mean level histogram of the last 20 s of training rows (hand-computed below);
+    """``resumed_level_weights``: the mean level histogram of the training rows of the last episode's duration
+    (hand-computed below);
     ``init_level_weights`` then draws the initial levels from it; bad weights are refused."""
     rows = [{"step": 1, "time/wall_s": 10.0, **{f"episode/terrain_level_{k}": float(k == 0) for k in range(3)}},
             {"step": 2, "time/wall_s": 50.0, "episode/terrain_level_0": 0.0, "episode/terrain_level_1": 0.5,
@@ -211,9 +212,10 @@ def test_a_resumed_run_starts_its_robots_at_the_level_distribution_it_stopped_at
              "episode/terrain_level_2": 1.0}]
     path = tmp_path / "metrics.jsonl"
     path.write_text("".join(json.dumps(r) + "\n" for r in rows))
-    assert rough.resumed_level_weights(str(path), 3) == (0.0, 0.25, 0.75)  # rows at 50 and 65 s, not the one at 10
-    assert rough.resumed_level_weights(str(path), 4) == ()  # another grid
-    assert rough.resumed_level_weights(str(tmp_path / "none.jsonl"), 3) == ()
+    assert rough.resumed_level_weights(str(path), 3, 20.0) == (0.0, 0.25, 0.75)  # rows at 50 and 65 s, not at 10
+    assert rough.resumed_level_weights(str(path), 3, 60.0) == (0.3333, 0.1667, 0.5)  # a longer episode: all three
+    assert rough.resumed_level_weights(str(path), 4, 20.0) == ()  # another grid
+    assert rough.resumed_level_weights(str(tmp_path / "none.jsonl"), 3, 20.0) == ()
     config = rough.RoughConfig(terrain_levels=3, terrain_columns=("rough",), terrain_cell_size=2.0,
                                terrain_border=2.0, terrain_platform=1.0, max_init_level=0,
                                init_level_weights=(0.0, 0.25, 0.75))

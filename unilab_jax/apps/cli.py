@@ -299,7 +299,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         # run's robots stood at when it stopped (its metrics' last level histogram), not at the initial levels
         from tasks import rough
 
-        weights = rough.resumed_level_weights(os.path.join(logdir, "metrics.jsonl"), task_config.terrain_levels)
+        weights = rough.resumed_level_weights(os.path.join(logdir, "metrics.jsonl"), task_config.terrain_levels,
+                                              task_config.episode_length * task_config.ctrl_dt)
         if weights:
             task_overrides["init_level_weights"] = weights
             print(f"--resume: terrain levels drawn from the run's last level distribution {weights}", flush=True)
