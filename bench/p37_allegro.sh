@@ -15,7 +15,8 @@
 # reward is moved toward keeping the object); hold (steady, and HORA's object-velocity penalty back at LINVEL
 # (default -0.3; the recipes set it to 0): from the grasp cache the teachers drop objects as early as a scripted
 # gait that pushes them off the palm, docs/RESULTS.md); held (hold, the episodes starting from the grasps that keep
-# their object through a still episode: grasp_cache=held, tasks/allegro_grasps.py); custom (EXTRA's flags). EXTRA is appended to every setting.
+# their object through a still episode: grasp_cache=held, tasks/allegro_grasps.py); custom (EXTRA's flags).
+# EXTRA is appended to every setting.
 set -u
 OUT=${OUT:-/tmp/p37}; mkdir -p "$OUT/runs"
 ROBOTS="wonik_allegro" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
@@ -29,11 +30,12 @@ std="--config final_std=${STD:-0.3} --config schedule_steps=${SCHED:-4000000}"
 grasp="--task_config=grasp_cache=builtin --task_config=reset_press=0"
 all="$fixed $std $grasp"
 steady="$all --task_config=scale_fall=${FALL:--40}"
+hold="$steady --task_config=scale_object_linvel=${LINVEL:--0.3}"
 case $SETTING in
   base) S="" ;; fixed_lr) S=$fixed ;; std) S=$std ;; grasp) S=$grasp ;; all) S=$all ;;
   steady) S=$steady ;;
-  hold) S="$steady --task_config=scale_object_linvel=${LINVEL:--0.3}" ;;
-  held) S="${steady/grasp_cache=builtin/grasp_cache=held} --task_config=scale_object_linvel=${LINVEL:--0.3}" ;;
+  hold) S=$hold ;;
+  held) S=${hold/grasp_cache=builtin/grasp_cache=held} ;;
   custom) S="" ;;
   *) echo "SETTING must be base, fixed_lr, std, grasp, all, steady, hold, held or custom"; exit 2 ;;
 esac
