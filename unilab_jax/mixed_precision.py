@@ -2,16 +2,18 @@
 
 * ``matmul(a, b, out_dtype)``: ``a @ b`` with the operands rounded to bf16 and float32 accumulation; the
   result in ``out_dtype``. Its gradients multiply in bf16 the same way (the cotangent rounded once); the
-  gradient of ``a`` comes back in ``a``'s dtype (bf16 activations get bf16 gradients, float32 inputs float32
-  ones), the gradient of ``b`` (a weight) in float32.
+  gradient of ``a`` comes back in ``a``'s dtype (bf16 activations get bf16 gradients, written by the GEMM as
+  bf16; float32 inputs float32 ones), the gradient of ``b`` (a weight) in float32.
 * ``layer_norm_relu(h, b, g, o)``: ``relu(LayerNorm(h + b) * g + o)`` for a bf16 matmul output ``h``, written
   out in bf16 for the next matmul. Mean, variance and the affine map are float32; the backward pass is
   written by hand so that it keeps only ``h`` (bf16) and two float32 numbers per row (mean, 1/std) and
   recomputes the normalised values, instead of the float32 intermediates that autodiff would store.
-  ``with ln_backward("pallas"):`` (this thread, at trace time; the off-policy learners' ``ln_backward`` field)
-  makes the backward pass ONE fused Pallas kernel per layer (``unilab_jax.pallas_kernels``) instead of the
-  XLA program of ``_ln_bwd``; shapes the kernel does not take (``h`` of rank other than 2 or 3, parameters
-  that vary along the rows, a width that is not a power of two on the GPU) keep the XLA backward.
+  ``with ln_kernels(forward="pallas", backward="pallas"):`` (this thread, at trace time; the off-policy
+  learners' ``ln_forward`` / ``ln_backward`` fields) makes either pass ONE fused Pallas kernel per layer
+  (``unilab_jax.pallas_kernels``) instead of XLA's program (``_ln_fwd``'s, ``_ln_bwd``'s); shapes the kernels do
+  not take (``h`` of rank other than 2 or 3, parameters that vary along the rows, a width that is not a power of
+  two on the GPU) keep XLA's. The Pallas forward also keeps the matmul's result in bf16: given the float32
+  statistics of ``h.astype(float32)``, XLA widens the bf16 matmul to a float32 result instead.
 
 * ``conv2d(x, w, stride)``: the shim's VALID NHWC convolution with bf16 operands and a bf16 result (float32
   accumulation inside the convolution), returned as float32. Its two backward convolutions (input and weight
@@ -51,22 +53,24 @@ import jax.numpy as jnp
 
 F32, BF16 = jnp.float32, jnp.bfloat16
 EPS = 1e-5  # LayerNorm's variance epsilon (nets._layer_norm's)
-LN_BACKWARDS = ("xla", "pallas")
-_LOCAL = threading.local()  # .ln_backward: the backward that layer_norm_relu traces now
+LN_KERNELS = ("xla", "pallas")
+_LOCAL = threading.local()  # .kernels: the (forward, backward) that layer_norm_relu traces now
 
 
 @contextlib.contextmanager
-def ln_backward(name: str) -> Iterator[None]:
-    """Within the block (this thread, at trace time), ``layer_norm_relu``'s backward pass is ``name``'s:
-    "xla" (``_ln_bwd``, the default) or "pallas" (the fused kernel, where the shapes allow it)."""
-    if name not in LN_BACKWARDS:
-        raise ValueError(f"ln_backward must be one of {LN_BACKWARDS}, got {name!r}")
-    previous = getattr(_LOCAL, "ln_backward", "xla")
-    _LOCAL.ln_backward = name
+def ln_kernels(forward: str = "xla", backward: str = "xla") -> Iterator[None]:
+    """Within the block (this thread, at trace time), ``layer_norm_relu``'s forward and backward passes are
+    "xla" (``_ln_fwd``'s and ``_ln_bwd``'s programs, the default) or "pallas" (the fused kernels, where the shapes
+    allow them)."""
+    for what, name in (("ln_forward", forward), ("ln_backward", backward)):
+        if name not in LN_KERNELS:
+            raise ValueError(f"{what} must be one of {LN_KERNELS}, got {name!r}")
+    previous = getattr(_LOCAL, "kernels", ("xla", "xla"))
+    _LOCAL.kernels = (forward, backward)
     try:
         yield
     finally:
-        _LOCAL.ln_backward = previous
+        _LOCAL.kernels = previous
 
 
 def unbroadcast(x: Any, shape: tuple) -> Any:
@@ -96,8 +100,11 @@ def matmul(a: Any, b: Any, out_dtype: Any = F32) -> Any:
 def _matmul_bwd(out_dtype: Any, res: tuple, g: Any) -> tuple[Any, Any]:
     a, b, a_dtype = res
     g = g.astype(BF16)
-    da = _mm(g, jnp.swapaxes(b, -1, -2), F32)
-    da = unbroadcast(da, a.shape).astype(a_dtype.dtype)  # summed in float32 where a was broadcast
+    bt = jnp.swapaxes(b, -1, -2)
+    if a_dtype.dtype == BF16 and a.shape == g.shape[:-1] + a.shape[-1:]:  # a bf16 result straight from the GEMM
+        da = _mm(g, bt, BF16)
+    else:  # summed in float32 where a was broadcast
+        da = unbroadcast(_mm(g, bt, F32), a.shape).astype(a_dtype.dtype)
     db = unbroadcast(_mm(jnp.swapaxes(a, -1, -2), g, F32), b.shape)
     return da, db
 
@@ -119,20 +126,50 @@ def _stats(x: Any) -> tuple[Any, Any]:
     return mu, jax.lax.rsqrt(var + EPS)
 
 
-def _ln_fwd(h: Any, b: Any, g: Any, o: Any, backward: str = "xla") -> tuple[Any, tuple]:
+def _pallas_params(h: Any, b: Any, g: Any, o: Any) -> list | None:
+    """``b, g, o`` as the kernels' float32 ``[E, 1, W]`` for ``h`` ``[E, B, W]`` or ``[B, W]`` (E = 1), or None
+    where the kernels do not take these shapes (other ranks, parameters varying along the rows, a width the GPU
+    lowering refuses)."""
+    from unilab_jax import pallas_kernels
+
+    width = h.shape[-1]
+    padded = [(1,) * (3 - p.ndim) + p.shape for p in (b, g, o)]
+    if (h.ndim not in (2, 3) or not pallas_kernels.supported(width)
+            or any(p.ndim > h.ndim or s[1:] != (1, width) or s[0] not in (1, h.shape[0] if h.ndim == 3 else 1)
+                   for p, s in zip((b, g, o), padded, strict=True))):
+        return None
+    e = h.shape[0] if h.ndim == 3 else 1
+    return [jnp.broadcast_to(p.reshape(s).astype(F32), (e, 1, width)) for p, s in zip((b, g, o), padded, strict=True)]
+
+
+def _ln_fwd_pallas(h: Any, b: Any, g: Any, o: Any) -> tuple[Any, Any, Any] | None:
+    from unilab_jax import pallas_kernels
+
+    params = _pallas_params(h, b, g, o)
+    if params is None:
+        return None
+    y, mu, rstd = pallas_kernels.ln_relu_forward(h if h.ndim == 3 else h[None], *params, eps=EPS)
+    return (y, mu, rstd) if h.ndim == 3 else (y[0], mu[0], rstd[0])
+
+
+def _ln_fwd(h: Any, b: Any, g: Any, o: Any, forward: str = "xla", backward: str = "xla") -> tuple[Any, tuple]:
+    fused = _ln_fwd_pallas(h, b, g, o) if forward == "pallas" else None
+    if fused is not None:
+        y, mu, rstd = fused
+        return y, (h, b, g, o, mu, rstd)
     x = h.astype(F32) + b
     mu, rstd = _stats(x)
     return jax.nn.relu((x - mu) * rstd * g + o).astype(BF16), (h, b, g, o, mu, rstd)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(4,))
-def _layer_norm_relu(h: Any, b: Any, g: Any, o: Any, backward: str) -> Any:
-    return _ln_fwd(h, b, g, o)[0]
+@functools.partial(jax.custom_vjp, nondiff_argnums=(4, 5))
+def _layer_norm_relu(h: Any, b: Any, g: Any, o: Any, forward: str, backward: str) -> Any:
+    return _ln_fwd(h, b, g, o, forward)[0]
 
 
 def layer_norm_relu(h: Any, b: Any, g: Any, o: Any) -> Any:
-    """``relu(LayerNorm(h + b) * g + o)`` in bf16, its backward the one ``ln_backward`` chose."""
-    return _layer_norm_relu(h, b, g, o, getattr(_LOCAL, "ln_backward", "xla"))
+    """``relu(LayerNorm(h + b) * g + o)`` in bf16, its forward and backward the ones ``ln_kernels`` chose."""
+    return _layer_norm_relu(h, b, g, o, *getattr(_LOCAL, "kernels", ("xla", "xla")))
 
 
 def _ln_bwd(res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
@@ -153,22 +190,18 @@ def _ln_bwd_pallas(res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
     from unilab_jax import pallas_kernels
 
     h, b, g, o, mu, rstd = res
-    width = h.shape[-1]
-    padded = [(1,) * (3 - p.ndim) + p.shape for p in (b, g, o)]
-    if (h.ndim not in (2, 3) or dy.shape != h.shape or not pallas_kernels.supported(width)
-            or any(p.ndim > h.ndim or s[1:] != (1, width) or s[0] not in (1, h.shape[0] if h.ndim == 3 else 1)
-                   for p, s in zip((b, g, o), padded, strict=True))):
+    params = _pallas_params(h, b, g, o) if dy.shape == h.shape else None
+    if params is None:
         return _ln_bwd(res, dy)
     h3, dy3, mu3, rstd3 = (a if h.ndim == 3 else a[None] for a in (h, dy, mu, rstd))
-    e = h3.shape[0]
-    params = [jnp.broadcast_to(p.reshape(s).astype(F32), (e, 1, width)) for p, s in zip((b, g, o), padded, strict=True)]
+    e, width = h3.shape[0], h.shape[-1]
     dh, *partials = pallas_kernels.ln_relu_backward(h3, dy3, mu3, rstd3, *params)
     sums = [unbroadcast(jnp.sum(s, axis=1, keepdims=True).reshape((e, 1, width)[3 - h.ndim:]), p.shape)
             for s, p in zip(partials, (b, g, o), strict=True)]
     return (dh.reshape(h.shape), *sums)
 
 
-def _ln_bwd_chosen(backward: str, res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
+def _ln_bwd_chosen(forward: str, backward: str, res: tuple, dy: Any) -> tuple[Any, Any, Any, Any]:
     return (_ln_bwd_pallas if backward == "pallas" else _ln_bwd)(res, dy)
 
 

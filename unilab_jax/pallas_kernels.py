@@ -1,4 +1,12 @@
-"""A fused Pallas kernel for the backward pass of ``mixed_precision.layer_norm_relu`` (``ln_backward="pallas"``).
+"""Fused Pallas kernels for ``mixed_precision.layer_norm_relu``: its forward pass (``ln_forward="pallas"``) and its
+backward pass (``ln_backward="pallas"``).
+
+``ln_relu_forward(h, b, g, o)`` takes an ensemble's ``[E, B, W]`` bf16 matmul output ``h`` and the float32
+parameters broadcast to ``[E, 1, W]``; it returns ``y = relu(LayerNorm(h + b) * g + o)`` in bf16 and the per-row
+float32 mean and 1/std (``[E, B, 1]``) that the backward pass reads. ONE kernel per layer, the same grid and chunks
+as the backward's: it reads ``h`` once (bf16) and writes ``y`` once, where XLA's program reads a float32 matmul
+output (XLA widens the matmul's bf16 result to the float32 that the statistics are taken in) and, in its fusions,
+re-reads it for the statistics.
 
 ``ln_relu_backward(h, dy, mu, rstd, b, g, o)`` takes an ensemble's ``[E, B, W]`` bf16 matmul output ``h`` and
 cotangent ``dy``, the forward pass's per-row float32 mean and 1/std (``[E, B, 1]``) and the float32 parameters
@@ -47,6 +55,25 @@ def _pow2_at_most(n: int) -> int:
     return 1 << (max(n, 1).bit_length() - 1)
 
 
+def _forward_kernel(h_ref: Any, b_ref: Any, g_ref: Any, o_ref: Any, y_ref: Any, mu_ref: Any, rstd_ref: Any, *,
+                    chunk: int, n_chunks: int, eps: float) -> None:
+    b, g, o = b_ref[...], g_ref[...], o_ref[...]  # [1, W] float32
+    inv_w = 1.0 / h_ref.shape[-1]
+
+    def body(i: Any, carry: Any) -> Any:
+        rows = pl.ds(i * chunk, chunk)
+        x = h_ref[rows, :].astype(F32) + b
+        mu = jnp.sum(x, axis=1, keepdims=True) * inv_w
+        centred = x - mu
+        rstd = jax.lax.rsqrt(jnp.sum(centred * centred, axis=1, keepdims=True) * inv_w + eps)
+        y_ref[rows, :] = jnp.maximum(centred * rstd * g + o, 0.0).astype(y_ref.dtype)
+        mu_ref[rows, :] = mu
+        rstd_ref[rows, :] = rstd
+        return carry
+
+    jax.lax.fori_loop(0, n_chunks, body, 0)
+
+
 def _kernel(h_ref: Any, dy_ref: Any, mu_ref: Any, rstd_ref: Any, b_ref: Any, g_ref: Any, o_ref: Any,
             dh_ref: Any, db_ref: Any, dg_ref: Any, do_ref: Any, *, chunk: int, n_chunks: int) -> None:
     b, g, o = b_ref[...], g_ref[...], o_ref[...]  # [1, W] float32
@@ -71,6 +98,42 @@ def _kernel(h_ref: Any, dy_ref: Any, mu_ref: Any, rstd_ref: Any, b_ref: Any, g_r
     db_ref[...], dg_ref[...], do_ref[...] = sdb, sdg, sdo
 
 
+def _layout(rows: int, width: int) -> tuple[int, int, int, int]:
+    """(rows per block, rows per chunk, blocks, padding rows) for ``rows`` rows of ``width``."""
+    block = min(ROWS_PER_BLOCK, 1 << (rows - 1).bit_length())  # a power of two; rows <= block fit one block
+    n_blocks = -(-rows // block)
+    return block, min(block, _pow2_at_most(CHUNK_ELEMENTS // width)), n_blocks, n_blocks * block - rows
+
+
+def _triton(interpret: bool) -> Any:
+    # Triton, not jax's default GPU lowering (Mosaic GPU, which stages whole blocks in shared memory)
+    return None if interpret else pl_triton.CompilerParams(num_warps=NUM_WARPS)
+
+
+def ln_relu_forward(h: Any, b: Any, g: Any, o: Any, eps: float, interpret: bool | None = None) -> tuple[Any, Any, Any]:
+    """``[E, B, W]`` h, ``[E, 1, W]`` b, g, o -> ``y`` ``[E, B, W]`` (h's dtype) and the rows' float32 mean and
+    1/std ``[E, B, 1]`` (of ``h + b``, variance + ``eps``). ``interpret`` as in ``ln_relu_backward``."""
+    interpret = _interpret() if interpret is None else interpret
+    e, rows, width = h.shape
+    block, chunk, n_blocks, pad = _layout(rows, width)
+    if pad:  # zero rows: finite statistics (rstd = 1/sqrt(eps)), cut off below
+        h = jnp.pad(h, ((0, 0), (0, pad), (0, 0)))
+    row_block = lambda w: pl.BlockSpec((None, block, w), lambda i, j: (i, j, 0))
+    per_member = pl.BlockSpec((None, 1, width), lambda i, j: (i, 0, 0))
+    stat = jax.ShapeDtypeStruct((e, n_blocks * block, 1), F32)
+    y, mu, rstd = pl.pallas_call(
+        functools.partial(_forward_kernel, chunk=chunk, n_chunks=block // chunk, eps=eps),
+        out_shape=[jax.ShapeDtypeStruct(h.shape, h.dtype), stat, stat],
+        grid=(e, n_blocks),
+        in_specs=[row_block(width), per_member, per_member, per_member],
+        out_specs=[row_block(width), row_block(1), row_block(1)],
+        interpret=interpret,
+        compiler_params=_triton(interpret),
+        name="ln_relu_forward",
+    )(h, b, g, o)
+    return (y[:, :rows], mu[:, :rows], rstd[:, :rows]) if pad else (y, mu, rstd)
+
+
 def ln_relu_backward(h: Any, dy: Any, mu: Any, rstd: Any, b: Any, g: Any, o: Any,
                      interpret: bool | None = None) -> tuple[Any, Any, Any, Any]:
     """``[E, B, W]`` h and dy, ``[E, B, 1]`` mu and rstd, ``[E, 1, W]`` b, g, o -> dh ``[E, B, W]`` and the
@@ -78,10 +141,7 @@ def ln_relu_backward(h: Any, dy: Any, mu: Any, rstd: Any, b: Any, g: Any, o: Any
     interprets on the CPU backend only (False lowers to Triton, e.g. to lower for a GPU from a CPU machine)."""
     interpret = _interpret() if interpret is None else interpret
     e, rows, width = h.shape
-    block = min(ROWS_PER_BLOCK, 1 << (rows - 1).bit_length())  # a power of two; rows <= block fit one block
-    chunk = min(block, _pow2_at_most(CHUNK_ELEMENTS // width))
-    n_blocks = -(-rows // block)
-    pad = n_blocks * block - rows
+    block, chunk, n_blocks, pad = _layout(rows, width)
     if pad:
         h, dy, mu, rstd = (jnp.pad(a, ((0, 0), (0, pad), (0, 0))) for a in (h, dy, mu, rstd))
     row_block = lambda w: pl.BlockSpec((None, block, w), lambda i, j: (i, j, 0))
@@ -95,8 +155,7 @@ def ln_relu_backward(h: Any, dy: Any, mu: Any, rstd: Any, b: Any, g: Any, o: Any
         in_specs=[row_block(width), row_block(width), row_block(1), row_block(1), per_member, per_member, per_member],
         out_specs=[row_block(width), per_block, per_block, per_block],
         interpret=interpret,
-        # Triton, not jax's default GPU lowering (Mosaic GPU, which stages whole blocks in shared memory)
-        compiler_params=None if interpret else pl_triton.CompilerParams(num_warps=NUM_WARPS),
+        compiler_params=_triton(interpret),
         name="ln_relu_backward",
     )(h, dy, mu.astype(F32), rstd.astype(F32), b, g, o)
     return (dh[:, :rows] if pad else dh), db, dg, do

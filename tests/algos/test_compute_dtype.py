@@ -40,13 +40,17 @@ def _batch(rng: np.random.Generator, u: int) -> dict:
             "terminated": rng.random((u, B)) < 0.05, "truncated": np.zeros((u, B), bool)}
 
 
-def _config(name: str, dtype: str, ln_backward: str = "xla"):
+def _config(name: str, dtype: str, ln: str = "xla"):
+    """``ln``: the LayerNorm kernels, "xla", "pallas" (forward and backward) or "pallas_backward"."""
+    kernels = {"xla": ("xla", "xla"), "pallas": ("pallas", "pallas"), "pallas_backward": ("xla", "pallas")}
+    forward, backward = kernels[ln]
     return dataclasses.replace(algos.get(name).Config(), batch_size=B, updates_per_call=2, compute_dtype=dtype,
-                               actor_hidden=(128, 64), critic_hidden=(256, 128), ln_backward=ln_backward)
+                               actor_hidden=(128, 64), critic_hidden=(256, 128), ln_forward=forward,
+                               ln_backward=backward)
 
 
-def _learner(name: str, dtype: str, ln_backward: str = "xla"):
-    cfg = _config(name, dtype, ln_backward)
+def _learner(name: str, dtype: str, ln: str = "xla"):
+    cfg = _config(name, dtype, ln)
     if name == "td3":
         return offpolicy_jax.TD3Learner(cfg, SPEC, compiler_options=FAST_COMPILE)
     return offpolicy_jax.SACFamilyLearner(algos.get(name), cfg, SPEC, compiler_options=FAST_COMPILE)
@@ -150,6 +154,41 @@ def test_pallas_ln_backward_matches_xla(h_shape, p_shape):
     assert float(np.abs(np.asarray(got[1])).max()) > 0.1  # the sums are not all zero
 
 
+@pytest.mark.parametrize("h_shape, p_shape", [((2, 64, 128), (2, 1, 128)), ((2, 100, 32), (32,)), ((100, 64), (64,)),
+                                              ((3, 40, 16), (3, 40, 16))])
+def test_pallas_ln_forward_matches_xla(h_shape, p_shape):
+    """The fused Pallas forward (interpreted on the CPU) against ``_ln_fwd``'s XLA program, the same cases as the
+    backward's: the output (bf16) within one bf16 step (both round the same float32 value, summed in another
+    order), the saved mean and 1/std within 1e-6 relative; parameters varying along the rows take XLA's program."""
+    from unilab_jax import mixed_precision as mp
+
+    (h, b, g, o, mu, rstd), _ = _ln_case(np.random.default_rng(7), h_shape, p_shape)
+    fused = jax.jit(lambda *a: mp._ln_fwd(*a, forward="pallas"))
+    assert ("pallas_call" in str(jax.make_jaxpr(fused)(h, b, g, o))) == (p_shape[-2:-1] != (40,))
+    y, (_, _, _, _, mu_p, rstd_p) = fused(h, b, g, o)
+    y_xla = mp._ln_fwd(h, b, g, o)[0]
+    assert y.shape == y_xla.shape and y.dtype == y_xla.dtype == jnp.bfloat16
+    a, w = np.asarray(y, np.float64), np.asarray(y_xla, np.float64)
+    assert np.all(np.abs(a - w) <= 2.0 ** -7 * np.abs(w) + 1e-6) and np.mean(a > 0) > 0.2
+    for got, want in ((mu_p, mu), (rstd_p, rstd)):
+        assert got.shape == want.shape
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-6, atol=1e-6)
+
+
+def test_pallas_ln_forward_lowers_to_triton_for_a_gpu():
+    """Lowered for CUDA at FastSAC Go1's first critic layer ([2, 8192, 1024]): one Triton call, no float32 copy of
+    ``h`` (its rows' statistics come back as [2, 8192, 1])."""
+    import functools
+
+    from unilab_jax import mixed_precision as mp
+    from unilab_jax import pallas_kernels
+
+    args = [jax.ShapeDtypeStruct((2, 8192, 1024), jnp.bfloat16)] + [jax.ShapeDtypeStruct((2, 1, 1024), jnp.float32)] * 3
+    fused = jax.jit(functools.partial(pallas_kernels.ln_relu_forward, eps=mp.EPS, interpret=False))
+    text = fused.trace(*args).lower(lowering_platforms=("cuda",)).as_text()
+    assert text.count("xla.gpu.triton") == 1 and "tensor<2x8192x1024xf32>" not in text
+
+
 def test_pallas_ln_backward_lowers_to_triton_for_a_gpu():
     """Lowered for CUDA from this CPU machine at FastSAC Go1's first critic layer ([2, 8192, 1024]): one Triton call
     (jax's default GPU lowering, Mosaic GPU, would stage the 64-row blocks in shared memory and refuse them)."""
@@ -165,45 +204,57 @@ def test_pallas_ln_backward_lowers_to_triton_for_a_gpu():
     assert text.count("xla.gpu.triton") == 1 and "tensor<2x128x1024xf32>" in text  # 128 blocks of 64 rows
 
 
-def test_ln_backward_switch_picks_the_kernel_at_trace_time():
-    """``mp.ln_backward("pallas")`` makes ``layer_norm_relu``'s vjp trace the Pallas kernel, only inside the block;
-    both give the same gradients; an unknown name is refused, in the context and in the learners' config."""
+@pytest.mark.parametrize("forward, backward", [("xla", "pallas"), ("pallas", "xla"), ("pallas", "pallas")])
+def test_ln_kernels_switch_picks_the_kernels_at_trace_time(forward, backward):
+    """``mp.ln_kernels(forward, backward)`` makes ``layer_norm_relu`` (its value and its vjp) trace the Pallas
+    kernels it names, only inside the block (one ``pallas_call`` per "pallas" pass); they give XLA's values and
+    gradients; an unknown name is refused, in the context and in the learners' config."""
     from unilab_jax import mixed_precision as mp
 
     (h, b, g, o, _, _), dy = _ln_case(np.random.default_rng(6), (2, 64, 32), (2, 1, 32))
-    def grads():  # a fresh function per block: jax caches a function's traces without the thread's setting
-        return jax.jit(lambda h, b, g, o, dy: jax.vjp(mp.layer_norm_relu, h, b, g, o)[1](dy))
+    def value_and_grads():  # a fresh function per block: jax caches a function's traces without the thread's setting
+        def f(h, b, g, o, dy):
+            y, vjp = jax.vjp(mp.layer_norm_relu, h, b, g, o)
+            return y, vjp(dy)
+        return jax.jit(f)
 
-    with mp.ln_backward("pallas"):
-        fused = grads()
-        assert "pallas_call" in str(jax.make_jaxpr(fused)(h, b, g, o, dy))
+    with mp.ln_kernels(forward, backward):
+        fused = value_and_grads()
+        assert str(jax.make_jaxpr(fused)(h, b, g, o, dy)).count("pallas_call") == [forward, backward].count("pallas")
         got = fused(h, b, g, o, dy)
-    xla = grads()
+    xla = value_and_grads()
     assert "pallas_call" not in str(jax.make_jaxpr(xla)(h, b, g, o, dy))
-    for a, w, rtol in zip(got, xla(h, b, g, o, dy), (2.0 ** -8, 1e-5, 1e-5, 1e-5), strict=True):
+    (y, grads), (y_xla, grads_xla) = got, xla(h, b, g, o, dy)
+    for a, w, rtol in zip((y, *grads), (y_xla, *grads_xla), (2.0 ** -7, 2.0 ** -7, 1e-5, 1e-5, 1e-5), strict=True):
         np.testing.assert_allclose(np.asarray(a, np.float32), np.asarray(w, np.float32), rtol=rtol, atol=1e-5)
-    with pytest.raises(ValueError, match="ln_backward"), mp.ln_backward("triton"):
-        pass
-    with pytest.raises(ValueError, match="ln_backward"):
-        algos.get("fastsac").Config(ln_backward="triton")
+    for what in ("ln_forward", "ln_backward"):
+        with pytest.raises(ValueError, match=what), mp.ln_kernels(**{what[3:]: "triton"}):
+            pass
+        with pytest.raises(ValueError, match=what):
+            algos.get("fastsac").Config(**{what: "triton"})
 
 
-def test_fastsac_update_with_pallas_ln_backward_matches_xla():
-    """One bf16 FastSAC update (2 gradient steps, LayerNorm critics) with ``ln_backward="pallas"`` traces the
-    kernel and lands where "xla" does: metrics within 1e-4 relative, parameters within 1e-5."""
+@pytest.mark.parametrize("ln", ["pallas_backward", "pallas"])
+def test_fastsac_update_with_pallas_ln_kernels_matches_xla(ln):
+    """One bf16 FastSAC update (2 gradient steps, LayerNorm critics) with the Pallas backward alone and with both
+    Pallas passes traces the kernels and lands where "xla" does: metrics within 1e-4 relative, the critic's
+    parameter update within 1% of XLA's (relative norm; measured 7.4e-5 with the Pallas backward, 1.25e-3 with both
+    passes, whose bf16 activations round either side of XLA's; the float32 program's update is 8.8% from bf16's)."""
     rng = np.random.default_rng(2)
     batch = _batch(rng, 2)
     out = {}
-    for ln_backward in ("xla", "pallas"):
-        learner = _learner("fastsac", "bfloat16", ln_backward)
+    for kernels in ("xla", ln):
+        learner = _learner("fastsac", "bfloat16", kernels)
         state = learner.init(jax.random.PRNGKey(0))
-        assert ("pallas_call" in str(jax.make_jaxpr(learner.traced_update)(state, batch))) == (ln_backward == "pallas")
-        out[ln_backward] = learner.update(state, batch)
-    (s_xla, m_xla), (s_pl, m_pl) = out["xla"], out["pallas"]
+        assert ("pallas_call" in str(jax.make_jaxpr(learner.traced_update)(state, batch))) == (kernels != "xla")
+        out[kernels] = learner.update(state, batch)
+    (s_xla, m_xla), (s_pl, m_pl) = out["xla"], out[ln]
     for k in ("critic_loss", "actor_loss", "critic_grad_norm", "actor_grad_norm", "q_mean"):
         assert float(m_pl[k]) == pytest.approx(float(m_xla[k]), rel=1e-4, abs=1e-6), k
-    moved = jax.tree_util.tree_leaves(jax.tree.map(lambda a, b: jnp.max(jnp.abs(a - b)), s_xla.critic, s_pl.critic))
-    assert max(float(d) for d in moved) < 1e-5
+    flat = lambda c: jnp.concatenate([jnp.ravel(a) for a in jax.tree_util.tree_leaves(c)])
+    start = flat(state.critic)
+    step_xla, step_pl = flat(s_xla.critic) - start, flat(s_pl.critic) - start
+    assert float(jnp.linalg.norm(step_pl - step_xla)) < 1e-2 * float(jnp.linalg.norm(step_xla))
 
 
 def _plain_ln(h, b, g, o, eps):

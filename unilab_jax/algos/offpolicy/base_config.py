@@ -27,10 +27,10 @@ class OffPolicyConfig(SelfChecking):
     float32 accumulation, results, master weights, norms, softmax, C51 projection, log-probs, losses and
     optimizer: ``unilab_jax.xp``'s ``compute_dtype``) or "auto" (``learner_common.AUTO_COMPUTE_DTYPE``
     per backend: float32 on CPU). The MLX learners compute in float32 and refuse "bfloat16".
-    ``ln_backward``: under bf16, the backward pass of the critics' LayerNorm + ReLU layers -- "xla" (the XLA
-    program of ``mixed_precision._ln_bwd``) or "pallas" (one fused Pallas kernel per layer,
-    ``unilab_jax.pallas_kernels``; meant for one device: XLA's SPMD partitioner does not split a Pallas call
-    under ``training.sharding``). The float32 program and the MLX learners ignore it.
+    ``ln_forward`` / ``ln_backward``: under bf16, the forward / backward pass of the critics' LayerNorm + ReLU
+    layers -- "xla" (the XLA programs of ``mixed_precision._ln_fwd`` / ``_ln_bwd``) or "pallas" (one fused Pallas
+    kernel per layer and pass, ``unilab_jax.pallas_kernels``; meant for one device: XLA's SPMD partitioner does not
+    split a Pallas call under ``training.sharding``). The float32 program and the MLX learners ignore them.
     """
 
     actor_hidden: tuple[int, ...] = (256, 256)
@@ -50,7 +50,8 @@ class OffPolicyConfig(SelfChecking):
     max_grad_norm: float = 0.0  # 0 disables gradient clipping
     weight_decay: float = 0.0  # decoupled (AdamW) when > 0
     compute_dtype: str = "auto"
-    ln_backward: str = "xla"  # bf16 LayerNorm backward: "xla" or "pallas" (one fused kernel per layer)
+    ln_forward: str = "xla"  # bf16 LayerNorm + ReLU forward: "xla" or "pallas" (one fused kernel per layer)
+    ln_backward: str = "xla"  # bf16 LayerNorm + ReLU backward: "xla" or "pallas" (one fused kernel per layer)
 
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""
@@ -63,6 +64,7 @@ class OffPolicyConfig(SelfChecking):
             problems.append(f"need 0 <= gamma <= 1 and 0 < tau <= 1 (gamma={self.gamma}, tau={self.tau})")
         if self.compute_dtype not in ("auto", "float32", "bfloat16"):
             problems.append(f"compute_dtype must be 'auto', 'float32' or 'bfloat16', got {self.compute_dtype!r}")
-        if self.ln_backward not in ("xla", "pallas"):
-            problems.append(f"ln_backward must be 'xla' or 'pallas', got {self.ln_backward!r}")
+        for name in ("ln_forward", "ln_backward"):
+            if getattr(self, name) not in ("xla", "pallas"):
+                problems.append(f"{name} must be 'xla' or 'pallas', got {getattr(self, name)!r}")
         return problems

@@ -25,8 +25,8 @@ for tests and tiny networks) go to ``jax.jit``. ``trace_count`` counts traces of
 the update is traced inside ``xp.compute_dtype``, so with "bfloat16" every network matmul (forward and
 backward) takes bf16 operands with float32 accumulation and results; parameters, optimizer states,
 norms, softmax, the C51 projection, log-probs and losses stay float32. "float32" traces exactly the
-float32 program. ``config.ln_backward`` ("xla" or "pallas": ``unilab_jax.mixed_precision.ln_backward``) picks
-the backward pass of the bf16 LayerNorm + ReLU layers.
+float32 program. ``config.ln_forward`` / ``ln_backward`` ("xla" or "pallas": ``mixed_precision.ln_kernels``) pick
+the forward / backward pass of the bf16 LayerNorm + ReLU layers.
 """
 
 from __future__ import annotations
@@ -76,9 +76,10 @@ class _Jitted:
 
     def traced_update(self, state: Any, batch: dict) -> tuple[Any, dict]:
         """The pure update as this learner compiles it: ``_update`` traced in the learner's ``compute_dtype``
-        and with the backward of its bf16 LayerNorm layers that ``config.ln_backward`` names (``training.sharding``
-        compiles this same function over several devices)."""
-        with XP.compute_dtype(self.compute_dtype), mixed_precision.ln_backward(self.config.ln_backward):
+        and with the forward and backward of its bf16 LayerNorm layers that ``config.ln_forward`` / ``ln_backward``
+        name (``training.sharding`` compiles this same function over several devices)."""
+        kernels = mixed_precision.ln_kernels(self.config.ln_forward, self.config.ln_backward)
+        with XP.compute_dtype(self.compute_dtype), kernels:
             return self._update(state, batch)
 
     def update(self, state: Any, batch: dict) -> tuple[Any, dict]:
