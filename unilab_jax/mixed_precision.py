@@ -88,8 +88,13 @@ def _mm(a: Any, b: Any, out_dtype: Any) -> Any:
 
 def _matmul_fwd(a: Any, b: Any, out_dtype: Any) -> tuple[Any, tuple]:
     a16, b16 = a.astype(BF16), b.astype(BF16)
+    # An input shared by an ensemble ([B, in] @ [E, in, out]) is broadcast to [E, B, in] first: a batched GEMM writes
+    # [E, B, out] as it is laid out; jnp.matmul's own broadcast is one [B, in] @ [in, E * out] GEMM whose [B, E, out]
+    # result XLA then transposes (a pass over the widest activation: H100 trace, docs/perf/learner_scaling.md 16).
+    shared = a16.ndim < b16.ndim
+    lhs = jnp.broadcast_to(a16, b16.shape[:-2] + a16.shape[-2:]) if shared and a16.ndim >= 2 else a16
     # the empty array carries a's dtype to the backward pass (residuals must be arrays)
-    return _mm(a16, b16, out_dtype), (a16, b16, jnp.zeros((0,), a.dtype))
+    return _mm(lhs, b16, out_dtype), (a16, b16, jnp.zeros((0,), a.dtype))
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(2,))

@@ -237,9 +237,12 @@ def test_ln_kernels_switch_picks_the_kernels_at_trace_time(forward, backward):
 @pytest.mark.parametrize("ln", ["pallas_backward", "pallas"])
 def test_fastsac_update_with_pallas_ln_kernels_matches_xla(ln):
     """One bf16 FastSAC update (2 gradient steps, LayerNorm critics) with the Pallas backward alone and with both
-    Pallas passes traces the kernels and lands where "xla" does: metrics within 1e-4 relative, the critic's
-    parameter update within 1% of XLA's (relative norm; measured 7.4e-5 with the Pallas backward, 1.25e-3 with both
-    passes, whose bf16 activations round either side of XLA's; the float32 program's update is 8.8% from bf16's)."""
+    Pallas passes traces the kernels and lands where "xla" does: the critic's parameter update within 1% of XLA's
+    (relative norm; measured here 7.4e-5 with the Pallas backward, 1.25e-3 with both passes, whose bf16 activations
+    round either side of XLA's; the float32 program's update is 8.8% from bf16's); the metrics within 1e-4 relative
+    with the Pallas backward, within bf16 rounding (1e-2, as against float32) with both: on a GPU XLA's program
+    takes the LayerNorm statistics from a float32 matmul result, the Pallas forward from the bf16 one (H100:
+    actor loss 1.5e-3 apart)."""
     rng = np.random.default_rng(2)
     batch = _batch(rng, 2)
     out = {}
@@ -247,12 +250,13 @@ def test_fastsac_update_with_pallas_ln_kernels_matches_xla(ln):
         learner = _learner("fastsac", "bfloat16", kernels)
         state = learner.init(jax.random.PRNGKey(0))
         assert ("pallas_call" in str(jax.make_jaxpr(learner.traced_update)(state, batch))) == (kernels != "xla")
-        out[kernels] = learner.update(state, batch)
+        out[kernels] = learner.update(state, batch)  # donates ``state`` on accelerators
     (s_xla, m_xla), (s_pl, m_pl) = out["xla"], out[ln]
+    rel = 1e-4 if ln == "pallas_backward" else 1e-2
     for k in ("critic_loss", "actor_loss", "critic_grad_norm", "actor_grad_norm", "q_mean"):
-        assert float(m_pl[k]) == pytest.approx(float(m_xla[k]), rel=1e-4, abs=1e-6), k
+        assert float(m_pl[k]) == pytest.approx(float(m_xla[k]), rel=rel, abs=1e-6), k
     flat = lambda c: jnp.concatenate([jnp.ravel(a) for a in jax.tree_util.tree_leaves(c)])
-    start = flat(state.critic)
+    start = flat(learner.init(jax.random.PRNGKey(0)).critic)
     step_xla, step_pl = flat(s_xla.critic) - start, flat(s_pl.critic) - start
     assert float(jnp.linalg.norm(step_pl - step_xla)) < 1e-2 * float(jnp.linalg.norm(step_xla))
 
