@@ -16,6 +16,7 @@
 #             has fewer GPU contexts than the machine has cores: each waiting thread holds a core the learner
 #             process's other threads, on the 3 cores the workers leave it, then lack)
 #   yield     the same with TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE=yield (spin, yielding the core between polls)
+#   ln        the critics' LayerNorm + ReLU forward and backward as Pallas kernels (ln_forward=ln_backward=pallas)
 #   c:K=V     the recipe's config field K set to V (--config=K=V), e.g. c:batch_size=4096
 #   f:F=V     the experiment flag --F=V, e.g. f:envs_per_worker=128 (after the configuration's own: it wins)
 # Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR), so runs compare like for
@@ -40,6 +41,7 @@ for v in ${VARIANTS:-base noeval swi}; do
   sched=${TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE:-}; [ "$v" = bsync ] && sched=blocking_sync; [ "$v" = yield ] && sched=yield
   [ "$v" = u16 ] && extra=(--extra=--config=updates_per_call=16)
   [ "$v" = noprec ] && extra=(--extra=--precompile=off)
+  [ "$v" = ln ] && extra=(--extra=--config=ln_forward=pallas --extra=--config=ln_backward=pallas)
   [[ "$v" == c:* ]] && extra=(--extra=--config=${v#c:})
   [[ "$v" == f:* ]] && extra=(--extra=--${v#f:})
   [ "$v" = w15 ] && extra=(--extra=--num_workers=15 --extra=--pin_cpus=-1)
