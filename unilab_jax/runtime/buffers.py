@@ -478,10 +478,14 @@ class ReplayBuffer:
         return new
 
     # ---- learner side -------------------------------------------------------------------------
-    def sizes(self) -> np.ndarray:
+    def counts(self) -> np.ndarray:
+        """Transitions each worker has committed in total, [num_workers] (a copy)."""
         counts = self._count[:, 0].copy()
         fence()
-        return np.minimum(counts, self.capacity)
+        return counts
+
+    def sizes(self) -> np.ndarray:
+        return np.minimum(self.counts(), self.capacity)
 
     def size(self) -> int:
         return int(self.sizes().sum())
