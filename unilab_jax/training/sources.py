@@ -138,7 +138,8 @@ class ReplaySource:
       the rings (``hot_fraction``) and the disk (:class:`TieredSampler`); a checkpoint first commits
       everything received so far (the store's cursor goes into its record). After ``--resume`` the
       rings start empty and the disk tier alone can start learning at once, where the bookkeeping
-      left off. Without a store, a resumed run warms up again and counts the ratio afresh.
+      left off. Without a store, a resumed run whose rings were restored (``training/ring_snapshot.py``) goes on
+      likewise; one whose rings start empty warms up again and counts the ratio afresh.
     * With prior data (``prior``, from an algorithm's ``prior_dir``: RLPD), every minibatch is composed
       of online rows drawn as above and ``prior_fraction`` of rows drawn uniformly from the prior data
       (``core.rlpd_kernels.compose``; symmetric sampling at 0.5). The warm-up and the ratio count online data only.
