@@ -21,13 +21,14 @@ the temporary folders of saves that never finished (orbax's ``*.orbax-checkpoint
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import os
 import shutil
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -120,7 +121,7 @@ class Checkpointer:
         self._ocp = None
         self._unsealed: list[int] = []  # orbax steps saved by this object whose digests are not written yet
         os.makedirs(self.directory, exist_ok=True)
-        _remove_dead_temp_dirs(self.directory)
+        remove_dead_temp_dirs(self.directory)
         if fmt == "orbax":
             self._ocp = _import_orbax()
             self._mngr = self._ocp.CheckpointManager(
@@ -164,7 +165,7 @@ class Checkpointer:
             return
         _save_npz(self.directory, int(step), to_saveable(state), meta)
         for old in _complete_steps(self.directory)[:-self.max_to_keep] if self.max_to_keep else []:
-            _remove_step(self.directory, old)
+            _remove_folder(os.path.join(self.directory, str(old)))
 
     # -- restore -----------------------------------------------------------------------------------
     def read(self, step: int | None = None) -> tuple[int, dict[str, np.ndarray], dict[str, Any]]:
@@ -254,7 +255,7 @@ class Checkpointer:
         process killed mid-save) and npz ones of dead processes. Call it only where no other process saves into
         this folder (``--resume``: the run that wrote it is gone). Returns the names removed."""
         self.wait()
-        _remove_dead_temp_dirs(self.directory)
+        remove_dead_temp_dirs(self.directory)
         removed = sorted(n for n in os.listdir(self.directory) if ORBAX_TMP in n)
         for name in removed:
             path = os.path.join(self.directory, name)
@@ -328,8 +329,9 @@ def _complete_steps(directory: str) -> list[int]:
     return sorted(int(n) for n in names if n.isdigit() and os.path.isdir(os.path.join(directory, n)))
 
 
-def _remove_dead_temp_dirs(directory: str) -> None:
-    """Deletes temp folders of npz saves whose process is gone (a crash mid-save); live ones are kept."""
+def remove_dead_temp_dirs(directory: str) -> None:
+    """Deletes the temporary folders of :func:`committed_folder` (npz saves) under ``directory`` whose process is
+    gone (a crash mid-save); live ones are kept."""
     for name in os.listdir(directory):
         for tag in (_TMP_TAG, _DEL_TAG):
             if tag in name:
@@ -364,9 +366,8 @@ def _save_npz(directory: str, step: int, saveable: Any, meta: dict[str, Any]) ->
     arrays, dtypes = {}, {}
     for path, leaf in shim.tree_paths(saveable):
         arrays[path], dtypes[path] = _encode(np.asarray(leaf))
-    tmp = os.path.join(directory, f"{step}{_TMP_TAG}{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    os.makedirs(tmp)
-    try:
+    # re-saving a step replaces it, as orbax's force=True does
+    with committed_folder(os.path.join(directory, str(step))) as tmp:
         with open(os.path.join(tmp, NPZ_STATE), "wb") as f:
             np.savez(f, **arrays)
             f.flush()
@@ -378,21 +379,34 @@ def _save_npz(directory: str, step: int, saveable: Any, meta: dict[str, Any]) ->
                 f.flush()
                 os.fsync(f.fileno())
         _write_digests(tmp)
+
+
+@contextlib.contextmanager
+def committed_folder(final: str) -> Iterator[str]:
+    """A new temporary folder beside ``final`` (``<final>.unilab-tmp-<pid>-<hex>``) to write into; the caller fsyncs
+    each file it writes. On a clean exit the folder is fsynced and replaces ``final`` (an existing one is renamed
+    away, then deleted), renamed into place (atomic on POSIX), the parent fsynced: ``final`` is the old folder or
+    the whole new one. On an error the temporary folder is deleted; after a crash, :func:`remove_dead_temp_dirs`
+    deletes it once its process is gone."""
+    parent, name = os.path.split(os.path.abspath(final))
+    tmp = os.path.join(parent, f"{name}{_TMP_TAG}{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    os.makedirs(tmp)
+    try:
+        yield tmp
         _fsync_path(tmp, directory=True)
-        final = os.path.join(directory, str(step))
-        if os.path.exists(final):  # re-saving a step replaces it, as orbax's force=True does
-            _remove_step(directory, step)
+        if os.path.exists(final):
+            _remove_folder(final)
         os.rename(tmp, final)
-        _fsync_path(directory, directory=True)
+        _fsync_path(parent, directory=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 
-def _remove_step(directory: str, step: int) -> None:
-    """Renames the step away first (atomic: it stops being a step at once), then deletes it."""
-    trash = os.path.join(directory, f"{step}{_DEL_TAG}{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    os.rename(os.path.join(directory, str(step)), trash)
+def _remove_folder(path: str) -> None:
+    """Renames the folder away first (atomic: a step stops being one at once), then deletes it."""
+    trash = f"{path}{_DEL_TAG}{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    os.rename(path, trash)
     shutil.rmtree(trash, ignore_errors=True)
 
 

@@ -262,6 +262,28 @@ def test_close_is_fast_idempotent_and_unlinks(algo):
         pool.collect()
 
 
+def test_stop_ends_the_workers_and_keeps_the_rings_until_close():
+    """``stop`` is ``close``'s first half (the trainer reads the rings in between, training/ring_snapshot.py)."""
+    pool = _pool(algo="toy_algo_replay", replay_capacity=30).start()
+    procs, names = list(pool._procs), pool.segment_names
+    try:
+        pool.publish(_weights(0), 0)
+        pool.wait_replay(W * 8, timeout=60)
+        pool.stop()
+        assert not any(p.is_alive() for p in procs)
+        assert all(p.exitcode == 0 for p in procs), [p.exitcode for p in procs]  # stopped by the flag
+        counts = pool.buffer.counts()
+        time.sleep(0.2)
+        assert (pool.buffer.counts() == counts).all() and counts.sum() >= W * 8  # nothing writes any more
+        assert set(names) <= set(list_segments())
+        assert np.isfinite(pool.buffer.sample(64, np.random.default_rng(0))["obs"]).all()
+        with pytest.raises(RuntimeError, match="stopped"):  # the stopped workers are not respawned
+            pool.before_sample()
+    finally:
+        pool.close()
+    assert not set(names) & set(list_segments())
+
+
 def test_invalid_configuration_fails_before_anything_starts():
     ours = f"unilab_{os.getpid()}_"  # other test processes (pytest-xdist) create segments meanwhile
     before = set(list_segments(ours))

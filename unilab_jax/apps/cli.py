@@ -81,6 +81,8 @@ flags.DEFINE_string("replay_dir", "", "off-policy: persistent replay store folde
 flags.DEFINE_float("replay_disk_gb", 10.0, "disk budget of --replay_dir; the oldest chunks are deleted past it")
 flags.DEFINE_float("replay_hot_fraction", 0.5, "with --replay_dir: share of each minibatch drawn from shared memory")
 flags.DEFINE_integer("replay_chunk_rows", 0, "with --replay_dir: transitions per committed chunk (0: ~16 MiB)")
+flags.DEFINE_bool("keep_replay", True, "off-policy: at an orderly stop (the end, Ctrl-C, SIGTERM) write the replay "
+                  "rings to <logdir>/replay_rings, which --resume copies back (not with --replay_dir or --ray_address)")
 flags.DEFINE_enum("replay_on_device", "auto", ["auto", "on", "off"], "off-policy, jax learner: keep a copy of the "
                   "replay rings in accelerator memory and sample minibatches there (auto: on unless JAX runs on the "
                   "CPU or --replay_dir is set)")
@@ -119,8 +121,9 @@ flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatabl
 RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker", "seed", "logdir", "resume",
              "eval_every", "eval_envs", "eval_process", "checkpoint_every", "video_every", "serial", "pin_cpus",
              "devices", "wandb_project", "profile_dir", "profile_start", "profile_updates", "config", "task_config")
-REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "replay_on_device",
-                "precompile", "device_split", "utd_mode", "utd_window", "ray_address", "ray_workers_per_host")
+REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "keep_replay",
+                "replay_on_device", "precompile", "device_split", "utd_mode", "utd_window", "ray_address",
+                "ray_workers_per_host")
 
 
 def run_flags(algo: str) -> list[str]:
@@ -314,7 +317,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     eval_process=opts.eval_process,
                     checkpoint_every=opts.checkpoint_every, serial=opts.serial, replay_dir=opts.replay_dir,
                     replay_disk_gb=opts.replay_disk_gb, replay_hot_fraction=opts.replay_hot_fraction,
-                    replay_chunk_rows=opts.replay_chunk_rows, replay_on_device=opts.replay_on_device,
+                    replay_chunk_rows=opts.replay_chunk_rows, keep_replay=opts.keep_replay,
+                    replay_on_device=opts.replay_on_device,
                     precompile=opts.precompile,
                     utd_mode=opts.utd_mode, utd_window=opts.utd_window, pin_cpus=opts.pin_cpus,
                     video_every=opts.video_every, devices=opts.devices, device_split=opts.device_split,

@@ -386,6 +386,7 @@ class ReplayBuffer:
         self._data = [{name: data[name][w] for name in names} for w in range(self.num_workers)]
         # Every field of every region as one [num_workers * capacity, ...] array: row w * capacity + i.
         self._flat = {name: data[name].reshape(-1, *data[name].shape[2:]) for name in self.fields}
+        self.regions = {name: data[name] for name in self.fields}  # every region as [num_workers, capacity, ...]
         self.resampled = 0  # rows redrawn because their writer may have reached them during the copy (stats)
         usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
         self.gather_threads = max(1, min(4, usable))
@@ -439,7 +440,7 @@ class ReplayBuffer:
             self._pool.shutdown()
             self._pool = None
         self._count = None
-        self._data, self._flat = [], {}
+        self._data, self._flat, self.regions = [], {}, {}
         self._seg.close()
         self._control.close()
 
@@ -478,10 +479,17 @@ class ReplayBuffer:
         return new
 
     # ---- learner side -------------------------------------------------------------------------
-    def sizes(self) -> np.ndarray:
+    def counts(self) -> np.ndarray:
+        """Each worker's committed total, a copy (``set_counts``: before any worker, ``training/ring_snapshot.py``)."""
         counts = self._count[:, 0].copy()
         fence()
-        return np.minimum(counts, self.capacity)
+        return counts
+
+    def sizes(self) -> np.ndarray:
+        return np.minimum(self.counts(), self.capacity)
+
+    def set_counts(self, counts: np.ndarray) -> None:
+        self._count[:, 0] = counts
 
     def size(self) -> int:
         return int(self.sizes().sum())

@@ -20,7 +20,8 @@ path, deterministic, debuggable with pdb.
 Worker processes use the ``spawn`` context, started without re-running the learner's script and with
 pinned thread pools (``unilab_jax/runtime/spawn.py``). ``close()`` raises a shared stop flag, joins the
 workers (SIGKILL after a grace period) and unlinks every segment; it is idempotent and also runs from a
-``weakref.finalize`` at exit. ``stats()`` reads the workers' counters (``unilab_jax/runtime/pool_stats.py``).
+``weakref.finalize`` at exit. ``stop()`` is its first half: the workers end, the segments stay readable.
+``stats()`` reads the workers' counters (``unilab_jax/runtime/pool_stats.py``).
 
 Worker faults are handled while the learner waits on the pool (``collect``, ``sample``,
 ``wait_replay``: every ``poll`` seconds), in the learner's consumer thread, so the recovery may touch
@@ -289,6 +290,11 @@ class WorkerPool:
             self._res.procs.append(p)
         self._beat[i] = (int(self._ctl["worker"][i, HEARTBEAT]), time.monotonic())
 
+    def stop(self, grace: float = 5.0) -> None:
+        """Stops the workers (within ``grace`` s, then SIGKILL) and keeps the segments: what the workers wrote can
+        still be read (the replay rings kept at an orderly stop, ``training/ring_snapshot.py``) until :meth:`close`."""
+        self._res.stop(grace)
+
     def close(self, grace: float = 5.0) -> None:
         """Stops the workers (within ``grace`` s, then SIGKILL), unlinks every segment."""
         self._res.shutdown(grace)
@@ -306,8 +312,8 @@ class WorkerPool:
 
     def _check_workers(self) -> None:
         """Raises :class:`WorkerDiedError` for a failed worker; respawns killed or hung ones."""
-        if self._res.closed:
-            raise RuntimeError("the pool is closed")
+        if self._res.stopped:  # the workers were stopped on purpose: none is respawned
+            raise RuntimeError("the pool is stopped")
         words = self._ctl["worker"]
         now = time.monotonic()
         for i, p in enumerate(self._procs):

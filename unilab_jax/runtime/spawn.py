@@ -8,7 +8,7 @@ and the algorithm module. ``worker_environment`` pins the BLAS / OpenMP thread p
 and ``cpu_placement`` computes each worker's CPU set when the learner keeps some cores to itself.
 ``PoolResources`` holds what must be released at close: it raises the shared stop flag, joins the workers
 (SIGKILL after a grace period) and closes every segment; ``WorkerPool`` runs it from ``close()`` and from a
-``weakref.finalize`` at exit.
+``weakref.finalize`` at exit, and its first half alone from ``stop()``.
 """
 
 from __future__ import annotations
@@ -87,18 +87,30 @@ def cpu_placement(num_workers: int, learner_cores: int, cpus: Sequence[int] | No
 
 
 class PoolResources:
-    """What must be released at close: processes and segments (referenced by the finalizer)."""
+    """What must be released at close: processes and segments (referenced by the finalizer). ``stop`` ends the
+    processes alone (the segments can still be read); ``shutdown`` ends them if needed and closes every segment."""
 
     def __init__(self) -> None:
         self.procs: list[Any] = []
         self.closers: list[Any] = []  # objects with close(), closed in reverse order
         self.control: SharedArrays | None = None
+        self.stopped = False
         self.closed = False
 
     def shutdown(self, grace: float = 5.0) -> None:
         if self.closed:
             return
         self.closed = True
+        self.stop(grace)
+        for obj in reversed(self.closers):
+            with contextlib.suppress(Exception):
+                obj.close()
+
+    def stop(self, grace: float = 5.0) -> None:
+        """Raises the shared stop flag and joins the workers, SIGKILLed past ``grace`` seconds."""
+        if self.stopped:
+            return
+        self.stopped = True
         if self.control is not None:
             with contextlib.suppress(Exception):
                 self.control["flags"][STOP_FLAG] = 1
@@ -109,6 +121,3 @@ class PoolResources:
             if p.is_alive():
                 p.kill()
                 p.join(2.0)
-        for obj in reversed(self.closers):
-            with contextlib.suppress(Exception):
-                obj.close()

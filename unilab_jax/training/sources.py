@@ -138,7 +138,8 @@ class ReplaySource:
       the rings (``hot_fraction``) and the disk (:class:`TieredSampler`); a checkpoint first commits
       everything received so far (the store's cursor goes into its record). After ``--resume`` the
       rings start empty and the disk tier alone can start learning at once, where the bookkeeping
-      left off. Without a store, a resumed run warms up again and counts the ratio afresh.
+      left off. Without a store, a resumed run whose rings were restored (``training/ring_snapshot.py``) goes on
+      likewise; one whose rings start empty warms up again and counts the ratio afresh.
     * With prior data (``prior``, from an algorithm's ``prior_dir``: RLPD), every minibatch is composed
       of online rows drawn as above and ``prior_fraction`` of rows drawn uniformly from the prior data
       (``core.rlpd_kernels.compose``; symmetric sampling at 0.5). The warm-up and the ratio count online data only.
@@ -293,13 +294,17 @@ class ReplaySource:
                     f"max(learning_starts={int(cfg.learning_starts)}, batch_size={int(cfg.batch_size)}) = "
                     f"{self._need:,} transitions, and the run took {env_steps:,} env steps; raise --total_steps "
                     f"or lower learning_starts (--config learning_starts=N)")
-        done = self._consumed * cfg.updates_per_call
+        done = self._grad_steps_used()  # a resumed run's too, when its bookkeeping went on (restored replay)
         owed = cfg.utd * max(env_steps - self._learn_start, 0)
         if done < 0.9 * owed and owed - done >= cfg.updates_per_call:
             return (f"fewer learner updates than asked: {done:,} gradient steps where utd={cfg.utd:g} asks "
                     f"{owed:,.0f} for the {env_steps - self._learn_start:,} env steps since learning started "
                     f"(the learner fell behind the workers; --utd_mode=hold keeps the ratio)")
         return None
+
+    def _grad_steps_used(self) -> int:
+        """Gradient steps since learning started, in the batches the loop has used (not those prefetched)."""
+        return max(self._grad_steps - (self._produced - self._consumed) * self._cfg.updates_per_call, 0)
 
     def _persist(self) -> None:
         """Copies every committed ring row to the store and commits them (the rings must be open)."""
@@ -312,9 +317,8 @@ class ReplaySource:
         """The sampling bookkeeping as of the batches the loop has used (not the one prefetched), and
         the store's cursor after committing everything received so far."""
         self._persist()
-        in_flight = self._produced - self._consumed
         meta: dict[str, Any] = {"learn_start": self._learn_start, "since_publish": self._since_publish,
-                                "grad_steps": max(self._grad_steps - in_flight * self._cfg.updates_per_call, 0)}
+                                "grad_steps": self._grad_steps_used()}
         if self._store is not None:
             meta.update({"store_dir": self._store.directory, "store_committed": self._store.committed,
                          "store_size": self._store.size, "spill_lost": self._spiller.lost})

@@ -9,8 +9,8 @@ the next batch and moves it to the device while the jitted update of the previou
 mode the workers wait for the new weights; in async mode they never wait and the policy lag (learner
 version minus the version that produced each transition) is logged. Evaluations and clips run in background
 threads (``training/evaluation.py``); checkpoints are written at evaluations, every ``checkpoint_every``
-env steps and at the end (``--resume`` continues from the last); an update with a non-finite loss stops the
-run (:class:`LearningDiverged`).
+env steps and at the end (``--resume`` continues from the last, with the replay rings kept at an orderly stop:
+``training/ring_snapshot.py``); an update with a non-finite loss stops the run (:class:`LearningDiverged`).
 
 Stopping: SIGINT and SIGTERM set a stop flag that every wait of the main thread checks. The learner's
 own calls (the update, whose first call compiles, and the weight download) run in a dedicated thread
@@ -52,6 +52,7 @@ from unilab_jax.runtime.ring import StopRequested
 from unilab_jax.runtime.spawn import cpu_placement
 from unilab_jax.runtime.weights import WeightPublisher
 from unilab_jax.runtime.worker import PREFETCH_MIN_BYTES
+from unilab_jax.training import ring_snapshot
 from unilab_jax.training.evaluation import AsyncEvaluator, ClipRecorder, evaluate_policy
 from unilab_jax.training.profiling import ProfileWindow
 from unilab_jax.training.sources import DeferredBatch, ReplaySource, TrajectorySource, batch_layout
@@ -85,6 +86,7 @@ class RunConfig:
     replay_disk_gb: float = 10.0  # disk budget of the store; the oldest chunks are deleted past it
     replay_hot_fraction: float = 0.5  # share of each minibatch drawn from the shared-memory rings
     replay_chunk_rows: int = 0  # transitions per committed chunk (0: ~16 MiB); a SIGKILL loses at most one
+    keep_replay: bool = True  # off-policy: the rings kept across an orderly stop (training/ring_snapshot.py)
     # Off-policy, JAX learner: mirror the rings in accelerator memory and sample there (training/device_replay.py).
     # "auto": on when JAX's default backend is not the CPU and there is no replay_dir; "on" / "off" force it.
     replay_on_device: str = "auto"
@@ -328,6 +330,7 @@ class Trainer:
 
             clips = ClipRecorder(self, run.video_every, counters["env_steps"])
         replay = self.algo.BUFFER == "replay"
+        keep_rings = replay and run.keep_replay and not run.replay_dir and not run.ray_address
         hold_window = self._hold_window(cfg) if replay else None
         # Opened before any worker starts or checkpoint is written, so a refused store changes nothing.
         store = self._open_replay_store() if replay else None
@@ -348,6 +351,8 @@ class Trainer:
         else:
             pool = WorkerPool(**pool_kwargs, worker_cpus=cpu_placement(run.num_workers, run.pin_cpus)
                               if run.pin_cpus >= 0 and not run.serial else None)
+        if keep_rings and run.resume:  # before any worker starts
+            ring_snapshot.resume(pool.buffer, run.logdir, run.task, counters["env_steps"])
         # Large weights of an asynchronous run are written by a background thread (the learner updates on);
         # lock-step, serial and Ray runs publish inline.
         publisher = (WeightPublisher(pool.publish) if replay and isinstance(pool, WorkerPool) and not run.serial
@@ -358,7 +363,7 @@ class Trainer:
         next_ckpt = counters["env_steps"] + run.checkpoint_every if run.checkpoint_every else None
         last_eval: dict[str, float] = {}
         evaluated_at = -1  # env steps of the last periodic evaluation
-        interrupted = False
+        interrupted = orderly = False  # orderly: the loop ended, or a stop ended it (not an error)
         diverged: LearningDiverged | None = None
         prefetch: Prefetcher | None = None
         pipe: UpdatePipeline | None = None
@@ -443,8 +448,9 @@ class Trainer:
                     next_ckpt += run.checkpoint_every
             while queued and not stop.is_set():
                 finish()
+            orderly = True
         except (KeyboardInterrupt, StopRequested):
-            interrupted = True
+            interrupted = orderly = True
         except LearningDiverged as e:
             diverged = e
         finally:
@@ -458,12 +464,17 @@ class Trainer:
                 source.stop()  # the last spill to disk, while the rings still exist
             if publisher is not None:
                 publisher.close()
-            pool.close()
+            (pool.stop if keep_rings and orderly else pool.close)()  # kept rings: read after the last checkpoint
             if prefetch is not None:
                 prefetch.join()
-            if diverged is None:  # a diverged state is not saved: the last checkpoint stands
-                self._final_save(ckpt, counters, state, source)
-            ckpt.close()
+            try:
+                if diverged is None:  # a diverged state is not saved: the last checkpoint stands
+                    self._final_save(ckpt, counters, state, source)
+                ckpt.close()
+                if keep_rings and orderly:
+                    ring_snapshot.keep(pool.buffer, run.logdir, run.task, counters["env_steps"])
+            finally:
+                pool.close()
             if store is not None:
                 store.close()
             learner.close()
