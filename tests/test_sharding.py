@@ -244,6 +244,19 @@ def test_sharded_updates_equal_single_device(tmp_path):
     assert result["train"]["ppo_resumed_updates"] == 2_048 // 128
 
 
+def test_pallas_layer_norm_kernels_are_refused_on_several_devices():
+    """A Pallas call is one device's program: the LayerNorm kernels are refused with a message on two devices and
+    kept on one."""
+    from unilab_jax import algos
+    from unilab_jax.training import sharding
+
+    config = algos.get("fastsac").Config(ln_forward="pallas")
+    with pytest.raises(ValueError, match="ln_forward=pallas run on one device only"):
+        sharding.check_kernels(config, 2)
+    sharding.check_kernels(config, 1)
+    sharding.check_kernels(algos.get("fastsac").Config(), 2)
+
+
 def test_devices_flag_values_are_checked():
     sharding = pytest.importorskip("unilab_jax.training.sharding")
     assert sharding.parse_devices("all") is None and sharding.parse_devices("2") == 2

@@ -151,12 +151,22 @@ def critic_shardings(state: Any, mesh: Mesh) -> Any:
     return type(state)(**{name: field(name, getattr(state, name)) for name in state._fields})
 
 
+def check_kernels(config: Any, n_devices: int) -> None:
+    """ValueError for Pallas LayerNorm kernels (``ln_forward`` / ``ln_backward``) on several devices: a Pallas call
+    is one device's program, which XLA's SPMD partitioner does not split."""
+    pallas = [f"{name}=pallas" for name in ("ln_forward", "ln_backward") if getattr(config, name, "xla") == "pallas"]
+    if pallas and n_devices > 1:
+        raise ValueError(f"--devices={n_devices}: {' and '.join(pallas)} run on one device only; drop them "
+                         "(--config ln_forward=xla --config ln_backward=xla) or use one device")
+
+
 def make(learner: Any, devices: int | None, split: str = "batch") -> Any:
     """``learner`` itself for one device (today's path, untouched), else a :class:`DataParallel` over the
     first ``devices`` local devices (None: all), split as ``split`` says."""
     chosen = local_devices(devices)
     if len(chosen) == 1:
         return learner
+    check_kernels(learner.config, len(chosen))
     return DataParallel(learner, chosen, DONATE_STATE, split)
 
 
