@@ -33,7 +33,7 @@ def _trainer(logdir, total_steps, resume=False, envs_per_worker=16, **config):
     module = algos.get("sac")
     run = RunConfig(algo="sac", task="cartpole_balance", num_workers=2, envs_per_worker=envs_per_worker,
                     total_steps=total_steps, seed=0, logdir=str(logdir), serial=True, eval_envs=2, resume=resume,
-                    replay_on_device="on")
+                    replay_on_device="on", keep_replay=True)
     return Trainer(run, module, apply_overrides(module.Config(), {**TINY_SAC, **config}), {})
 
 
@@ -136,14 +136,15 @@ def test_a_damaged_incomplete_or_missing_snapshot_leaves_the_rings_empty(resumab
 
 
 def test_keep_replay_off_or_a_replay_store_keep_no_rings(tmp_path):
-    """``--keep_replay=false``, and ``--replay_dir``, whose store keeps the replay instead (the command line's checks
-    and flags, through ``unilab_jax.train``), beside a run with neither."""
+    """By default (``keep_replay`` off: a run does not write gigabytes at each stop unless asked) and with
+    ``--replay_dir`` (whose store keeps the replay instead) no rings are kept; ``keep_replay=True`` keeps them (the
+    command line's checks and flags, through ``unilab_jax.train``)."""
     kept = {}
     store = {"replay_dir": str(tmp_path / "store"), "replay_on_device": "off"}
-    for name, option in (("plain", {}), ("off", {"keep_replay": False}), ("store", store)):
+    for name, option in (("plain", {}), ("on", {"keep_replay": True}), ("store", {**store, "keep_replay": True})):
         summary = unilab_jax.train("sac", "cartpole_balance", logdir=str(tmp_path / name), total_steps=512,
                                    config=TINY_SAC, num_workers=2, envs_per_worker=16, serial=True, eval_envs=2,
                                    **{"replay_on_device": "on", **option})
         assert summary["env_steps"] == 512
         kept[name] = (tmp_path / name / FOLDER).is_dir()
-    assert kept == {"plain": True, "off": False, "store": False}
+    assert kept == {"plain": False, "on": True, "store": False}

@@ -14,10 +14,10 @@ broadcast to ``[E, 1, W]``; it returns ``dh`` (``[E, B, W]``, ``h``'s dtype) and
 float32 partial sums over row blocks (of ``dx``, ``dz * xhat`` and ``dz``: the gradients of the bias, gain and
 offset before their batch sums, which the caller finishes with a small ``jnp.sum``).
 
-The backward, ONE kernel per layer: a grid over ``(E, row blocks)``, each program walking its ``ROWS_PER_BLOCK`` rows in chunks
-of ``chunk`` rows (the whole width ``W`` in each): it reads ``h`` and ``dy`` once, recomputes the normalised
-values from the saved statistics, takes the two row means of the LayerNorm gradient, writes ``dx`` in bf16 and
-keeps the three column sums in float32 registers across its chunks. ``B`` not a multiple of the block: the rows
+The backward, ONE kernel per layer: a grid over ``(E, row blocks)``, each program walking its ``ROWS_PER_BLOCK``
+rows in chunks of ``chunk`` rows (the whole width ``W`` in each): it reads ``h`` and ``dy`` once, recomputes the
+normalised values from the saved statistics, takes the two row means of the LayerNorm gradient, writes ``dx`` in
+bf16 and keeps the three column sums in float32 registers across its chunks. ``B`` not a multiple of the block: the rows
 are padded with zeros (``dy = 0`` and ``rstd = 0`` there, so a padded row's ``dx``, ``dz`` and ``xhat`` are exactly
 zero and add nothing to the partial sums) and ``dh`` is cut back to ``B`` rows.
 

@@ -81,7 +81,7 @@ flags.DEFINE_string("replay_dir", "", "off-policy: persistent replay store folde
 flags.DEFINE_float("replay_disk_gb", 10.0, "disk budget of --replay_dir; the oldest chunks are deleted past it")
 flags.DEFINE_float("replay_hot_fraction", 0.5, "with --replay_dir: share of each minibatch drawn from shared memory")
 flags.DEFINE_integer("replay_chunk_rows", 0, "with --replay_dir: transitions per committed chunk (0: ~16 MiB)")
-flags.DEFINE_bool("keep_replay", True, "off-policy: at an orderly stop (the end, Ctrl-C, SIGTERM) write the replay "
+flags.DEFINE_bool("keep_replay", False, "off-policy: at an orderly stop (the end, Ctrl-C, SIGTERM) write the replay "
                   "rings to <logdir>/replay_rings, which --resume copies back (not with --replay_dir or --ray_address)")
 flags.DEFINE_enum("replay_on_device", "auto", ["auto", "on", "off"], "off-policy, jax learner: keep a copy of the "
                   "replay rings in accelerator memory and sample minibatches there (auto: on unless JAX runs on the "

@@ -86,7 +86,7 @@ class RunConfig:
     replay_disk_gb: float = 10.0  # disk budget of the store; the oldest chunks are deleted past it
     replay_hot_fraction: float = 0.5  # share of each minibatch drawn from the shared-memory rings
     replay_chunk_rows: int = 0  # transitions per committed chunk (0: ~16 MiB); a SIGKILL loses at most one
-    keep_replay: bool = True  # off-policy: the rings kept across an orderly stop (training/ring_snapshot.py)
+    keep_replay: bool = False  # off-policy: the rings kept across an orderly stop (training/ring_snapshot.py)
     # Off-policy, JAX learner: mirror the rings in accelerator memory and sample there (training/device_replay.py).
     # "auto": on when JAX's default backend is not the CPU and there is no replay_dir; "on" / "off" force it.
     replay_on_device: str = "auto"
