@@ -166,7 +166,7 @@ def make(learner: Any, devices: int | None, split: str = "batch") -> Any:
     chosen = local_devices(devices)
     if len(chosen) == 1:
         return learner
-    check_kernels(learner.config, len(chosen))
+    check_kernels(learner.config, len(chosen))  # also here for callers that skip check_run (bench/scale_out.py)
     return DataParallel(learner, chosen, DONATE_STATE, split)
 
 
@@ -184,6 +184,7 @@ def check_run(devices: str, platform: str, config: Any, buffer: str, num_workers
     if split not in SPLITS:
         raise ValueError(f"--device_split={split!r}: choose one of {SPLITS}")
     n = len(local_devices(n))
+    check_kernels(config, n)
     if split == "critics":
         if buffer != "replay":
             raise ValueError("--device_split=critics: the off-policy learners' critic ensemble only")
