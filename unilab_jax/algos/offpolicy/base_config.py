@@ -30,7 +30,7 @@ class OffPolicyConfig(SelfChecking):
     ``ln_forward`` / ``ln_backward``: under bf16, the forward / backward pass of the critics' LayerNorm + ReLU
     layers -- "xla" (the XLA programs of ``mixed_precision._ln_fwd`` / ``_ln_bwd``) or "pallas" (one fused Pallas
     kernel per layer and pass, ``unilab_jax.pallas_kernels``; meant for one device: XLA's SPMD partitioner does not
-    split a Pallas call: ``training.sharding.make`` refuses them on several devices). The float32 program and the MLX
+    split a Pallas call: ``training.sharding`` refuses them on several devices). The float32 program and the MLX
     learners ignore them.
     """
 
