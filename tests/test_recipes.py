@@ -224,7 +224,8 @@ def test_every_script_runs_its_recipe_from_unilab_jax_recipes(calls):
         assert recipe.launcher == launcher and dict(recipe.kwargs) == given, script
     go1 = recipes.get("fastsac_go1")
     assert (go1.algo, go1.task, go1.recipe, go1.total_steps) == ("fastsac", "go1_joystick_flat",
-                                                                 {"v_min": -0.5, "v_max": 1.5}, 50_000_000)
+                                                                 {"v_min": -0.5, "v_max": 1.5, "utd": 12 / 1024},
+                                                                 50_000_000)
     assert recipes.get("sac_cartpole").train_args()["total_steps"] == 1_000_000
     with pytest.raises(ValueError, match="unknown recipe"):
         recipes.get("nope")

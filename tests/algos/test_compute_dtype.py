@@ -413,3 +413,36 @@ def test_bf16_learns_the_contextual_bandit(name):
         state, _ = learner.update(state, bandit_batch(rng, cfg.updates_per_call))
     assert start > 0.5 and error(state) < 0.1, f"{name} bf16: action error {start:.3f} -> {error(state):.3f}"
 
+
+
+class _Device:
+    """What ``learner_common.ln_kernels`` reads of a jax device."""
+
+    def __init__(self, platform: str, version: str, capability: str | None):
+        self.platform, self.compute_capability = platform, capability
+        self.client = type("Client", (), {"platform_version": version})()
+
+
+@pytest.mark.parametrize(("devices", "dtype", "want"), [
+    ([_Device("gpu", "cuda 12080", "9.0")], "bfloat16", "pallas"),     # one H100
+    ([_Device("gpu", "cuda 12080", "8.6")], "bfloat16", "pallas"),     # one Ampere card
+    ([_Device("gpu", "cuda 12080", "7.5")], "bfloat16", "xla"),        # Turing: no bf16 in Triton
+    ([_Device("gpu", "cuda 12080", "9.0")] * 2, "bfloat16", "xla"),    # a Pallas call is one device's program
+    ([_Device("gpu", "cuda 12080", "9.0")], "float32", "xla"),         # the float32 program has no bf16 layers
+    ([_Device("gpu", "rocm 60342", "gfx942")], "bfloat16", "xla"),     # ROCm
+    ([_Device("cpu", "cpu", None)], "bfloat16", "xla"),
+])
+def test_auto_ln_kernels_are_pallas_on_one_nvidia_gpu_only(devices, dtype, want):
+    auto = algos.get("fastsac").Config()
+    assert (auto.ln_forward, auto.ln_backward) == ("auto", "auto")
+    assert common.ln_kernels(auto, dtype, devices) == (want, want)
+    chosen = dataclasses.replace(auto, ln_forward="xla", ln_backward="pallas")
+    assert common.ln_kernels(chosen, dtype, devices) == ("xla", "pallas")  # a name other than "auto" is kept
+
+
+def test_learner_on_this_cpu_resolves_auto_to_xla():
+    cfg = dataclasses.replace(_config("fastsac", "bfloat16"), ln_forward="auto", ln_backward="auto")
+    learner = offpolicy_jax.SACFamilyLearner(algos.get("fastsac"), cfg, SPEC, compiler_options=FAST_COMPILE)
+    assert learner.ln_kernels == ("xla", "xla")
+    state, batch = learner.init(jax.random.PRNGKey(0)), _batch(np.random.default_rng(0), 2)
+    assert "pallas_call" not in str(jax.make_jaxpr(learner.traced_update)(state, batch))

@@ -35,6 +35,8 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from unilab_jax.algos.offpolicy import learner_common as common
+
 AXIS = "batch"
 SPLITS = ("batch", "critics")
 # The off-policy learners' state fields that hold the critic ensemble (every leaf's leading axis: its members).
@@ -86,6 +88,8 @@ class DataParallel:
         if split not in SPLITS:
             raise ValueError(f"device split must be one of {SPLITS}, got {split!r}")
         self.learner, self.split = learner, split
+        if hasattr(learner, "ln_kernels"):  # "auto" on several devices: XLA's programs (make refuses "pallas")
+            learner.ln_kernels = common.ln_kernels(learner.config, learner.compute_dtype, devices)
         self.config, self.spec = learner.config, learner.spec
         self.mesh = Mesh(np.asarray(devices), (AXIS,))
         self.replicated = NamedSharding(self.mesh, P())

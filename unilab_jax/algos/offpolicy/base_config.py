@@ -28,10 +28,11 @@ class OffPolicyConfig(SelfChecking):
     optimizer: ``unilab_jax.xp``'s ``compute_dtype``) or "auto" (``learner_common.AUTO_COMPUTE_DTYPE``
     per backend: float32 on CPU). The MLX learners compute in float32 and refuse "bfloat16".
     ``ln_forward`` / ``ln_backward``: under bf16, the forward / backward pass of the critics' LayerNorm + ReLU
-    layers -- "xla" (the XLA programs of ``mixed_precision._ln_fwd`` / ``_ln_bwd``) or "pallas" (one fused Pallas
-    kernel per layer and pass, ``unilab_jax.pallas_kernels``; meant for one device: XLA's SPMD partitioner does not
-    split a Pallas call: ``training.sharding`` refuses them on several devices). The float32 program and the MLX
-    learners ignore them.
+    layers -- "xla" (the XLA programs of ``mixed_precision._ln_fwd`` / ``_ln_bwd``), "pallas" (one fused Pallas
+    kernel per layer and pass, ``unilab_jax.pallas_kernels``; for one device: XLA's SPMD partitioner does not
+    split a Pallas call, so ``training.sharding`` refuses them on several devices) or "auto" (the default: "pallas"
+    on one NVIDIA GPU, "xla" elsewhere; ``learner_common.ln_kernels``). The float32 program and the MLX learners
+    ignore them.
     """
 
     actor_hidden: tuple[int, ...] = (256, 256)
@@ -51,8 +52,8 @@ class OffPolicyConfig(SelfChecking):
     max_grad_norm: float = 0.0  # 0 disables gradient clipping
     weight_decay: float = 0.0  # decoupled (AdamW) when > 0
     compute_dtype: str = "auto"
-    ln_forward: str = "xla"  # bf16 LayerNorm + ReLU forward: "xla" or "pallas" (one fused kernel per layer)
-    ln_backward: str = "xla"  # bf16 LayerNorm + ReLU backward: "xla" or "pallas" (one fused kernel per layer)
+    ln_forward: str = "auto"  # bf16 LayerNorm + ReLU forward: "auto", "xla" or "pallas" (one fused kernel per layer)
+    ln_backward: str = "auto"  # bf16 LayerNorm + ReLU backward: "auto", "xla" or "pallas" (one fused kernel per layer)
 
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""
@@ -66,6 +67,6 @@ class OffPolicyConfig(SelfChecking):
         if self.compute_dtype not in ("auto", "float32", "bfloat16"):
             problems.append(f"compute_dtype must be 'auto', 'float32' or 'bfloat16', got {self.compute_dtype!r}")
         for name in ("ln_forward", "ln_backward"):
-            if getattr(self, name) not in ("xla", "pallas"):
-                problems.append(f"{name} must be 'xla' or 'pallas', got {getattr(self, name)!r}")
+            if getattr(self, name) not in ("auto", "xla", "pallas"):
+                problems.append(f"{name} must be 'auto', 'xla' or 'pallas', got {getattr(self, name)!r}")
         return problems

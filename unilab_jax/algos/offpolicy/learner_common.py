@@ -44,6 +44,26 @@ def compute_dtype(config: Any, backend: str) -> str:
     return name
 
 
+def ln_kernels(config: Any, compute_dtype: str, devices: list[Any]) -> tuple[str, str]:
+    """The (forward, backward) kernels of the bf16 LayerNorm + ReLU layers for ``config.ln_forward`` /
+    ``ln_backward`` on ``devices``: "auto" is "pallas" for a bf16 learner on ONE NVIDIA GPU of compute capability
+    >= 8 (Ampere and later: bf16 in Triton; the fused kernels take the H100 learner from 514 to 605 gradient steps/s,
+    docs/perf/learner_scaling.md section 16), else "xla" (CPU, ROCm, several devices, float32)."""
+    one_cuda_gpu = len(devices) == 1 and _cuda_major(devices[0]) >= 8
+    auto = "pallas" if one_cuda_gpu and compute_dtype == "bfloat16" else "xla"
+    return tuple(auto if name == "auto" else name for name in (config.ln_forward, config.ln_backward))
+
+
+def _cuda_major(device: Any) -> int:
+    """The CUDA compute capability's major number of a jax ``device``; 0 for any other device."""
+    if device.platform != "gpu" or "cuda" not in str(getattr(device.client, "platform_version", "")).lower():
+        return 0
+    try:
+        return int(str(getattr(device, "compute_capability", "0")).split(".")[0])
+    except ValueError:
+        return 0
+
+
 def make_optimizer(opt: ModuleType, learning_rate: float, weight_decay: float = 0.0,
                    max_grad_norm: float = 0.0) -> Any:
     """Adam (AdamW when ``weight_decay`` > 0), after global-norm clipping when ``max_grad_norm`` > 0;
