@@ -3,7 +3,8 @@
 # FastSAC Go1 (fastsac_async, SEED) once per variant, MAXS seconds each; per run (bench/learner_runs.py, from 40 s to
 # the end): calls/s, gradient steps/s, the learner thread's milliseconds per call (perf/update_s: the update's dispatch;
 # perf/fetch_s: its results to the host), and the time to walking if reached.
-#   base      as bench/time_to_target.py runs it (13 workers, which --pin_cpus=auto keeps off 3 cores)
+#   base      as bench/time_to_target.py runs it (13 workers, which --pin_cpus=auto keeps off 3 cores; since 4182490 the
+#             LayerNorm kernels "auto": the Pallas ones on one NVIDIA GPU)
 #   w15       15 workers, no affinity (--pin_cpus=-1): the base before that
 #   noeval    no evaluation during the run (--eval_every past the budget): the evaluator thread's share
 #   swi       the interpreter's GIL switch interval 0.5 ms instead of 5 ms (sys.setswitchinterval, via sitecustomize)
@@ -17,6 +18,7 @@
 #             process's other threads, on the 3 cores the workers leave it, then lack)
 #   yield     the same with TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE=yield (spin, yielding the core between polls)
 #   ln        the critics' LayerNorm + ReLU forward and backward as Pallas kernels (ln_forward=ln_backward=pallas)
+#   xla       the same as XLA's programs (ln_forward=ln_backward=xla: the base before 4182490)
 #   c:K=V     the recipe's config field K set to V (--config=K=V), e.g. c:batch_size=4096
 #   A+B       both parts, e.g. ln+c:utd=0.01171875 (the Pallas kernels and 12 gradient steps per 1024 transitions)
 #   f:F=V     the experiment flag --F=V, e.g. f:envs_per_worker=128 (after the configuration's own: it wins)
@@ -44,6 +46,7 @@ for v in ${VARIANTS:-base noeval swi}; do
     [ "$p" = u16 ] && extra+=(--extra=--config=updates_per_call=16) && u=16
     [ "$p" = noprec ] && extra+=(--extra=--precompile=off)
     [ "$p" = ln ] && extra+=(--extra=--config=ln_forward=pallas --extra=--config=ln_backward=pallas)
+    [ "$p" = xla ] && extra+=(--extra=--config=ln_forward=xla --extra=--config=ln_backward=xla)
     [[ "$p" == c:* ]] && extra+=(--extra=--config=${p#c:})
     [[ "$p" == c:updates_per_call=* ]] && u=${p#c:updates_per_call=}
     [[ "$p" == f:* ]] && extra+=(--extra=--${p#f:})

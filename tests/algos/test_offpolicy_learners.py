@@ -201,3 +201,32 @@ def test_precompile_leaves_the_first_update_nothing_to_compile(caplog):
     compiles = [r.getMessage() for r in caplog.records if "traced_update" in r.getMessage()]
     assert compiles == [] and learner.trace_count == 1, compiles
     assert int(state.steps) == cfg.updates_per_call
+
+
+@pytest.mark.parametrize("name", ["fastsac", "td3"])
+def test_flat_optimizer_takes_the_same_steps(name):
+    """``flat_optimizer``: the optimizers over one flat parameter vector (one moment vector per network) give the
+    parameters of the per-array optimizers after two calls, up to float32 summation order (the gradient clip's
+    global norm); the MLX optimizers refuse it."""
+    mod = algos.get(name)
+    cfg = dataclasses.replace(mod.Config(), **COMMON, **SETUPS[name][0], max_grad_norm=1.0, weight_decay=0.1)
+    batch = _batch(np.random.default_rng(5), cfg.updates_per_call)
+    out = {}
+    for flat in (False, True):
+        c = dataclasses.replace(cfg, flat_optimizer=flat)
+        learner = (offpolicy_jax.TD3Learner(c, SPEC, compiler_options=FAST_COMPILE) if name == "td3"
+                   else offpolicy_jax.SACFamilyLearner(mod, c, SPEC, compiler_options=FAST_COMPILE))
+        state = learner.init(jax.random.PRNGKey(0))
+        for _ in range(2):
+            state, _ = learner.update(state, batch)
+        out[flat] = state
+    moments = [x for x in jax.tree_util.tree_leaves(out[True].critic_opt) if x.size > 1]
+    assert moments and all(x.ndim == 1 for x in moments)  # flat moment vectors
+    for a, b in zip(jax.tree_util.tree_leaves((out[True].actor, out[True].critic)),
+                    jax.tree_util.tree_leaves((out[False].actor, out[False].critic)), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+    mlx_opt = pytest.importorskip("unilab_mlx.optim")
+    from unilab_jax.algos.offpolicy import learner_common
+
+    with pytest.raises(ValueError, match="flat_optimizer"):
+        learner_common.make_optimizer(mlx_opt, 1e-3, flat=True)

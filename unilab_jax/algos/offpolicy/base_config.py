@@ -32,7 +32,8 @@ class OffPolicyConfig(SelfChecking):
     kernel per layer and pass, ``unilab_jax.pallas_kernels``; for one device: XLA's SPMD partitioner does not
     split a Pallas call, so ``training.sharding`` refuses them on several devices) or "auto" (the default: "pallas"
     on one NVIDIA GPU, "xla" elsewhere; ``learner_common.ln_kernels``). The float32 program and the MLX learners
-    ignore them.
+    ignore them. ``flat_optimizer``: the actor's and critics' optimizers over one flat vector of their parameters
+    (``learner_common.make_optimizer``; the same arithmetic in fewer kernels); the MLX learners refuse it.
     """
 
     actor_hidden: tuple[int, ...] = (256, 256)
@@ -54,6 +55,7 @@ class OffPolicyConfig(SelfChecking):
     compute_dtype: str = "auto"
     ln_forward: str = "auto"  # bf16 LayerNorm + ReLU forward: "auto", "xla" or "pallas" (one fused kernel per layer)
     ln_backward: str = "auto"  # bf16 LayerNorm + ReLU backward: "auto", "xla" or "pallas" (one fused kernel per layer)
+    flat_optimizer: bool = False  # the actor's and critics' Adam over one flat parameter vector (JAX only)
 
     def problems(self) -> list[str]:
         """This class's fields' problems (empty when valid); a subclass appends its own fields' to its base's."""

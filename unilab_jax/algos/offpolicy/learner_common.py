@@ -65,15 +65,20 @@ def _cuda_major(device: Any) -> int:
 
 
 def make_optimizer(opt: ModuleType, learning_rate: float, weight_decay: float = 0.0,
-                   max_grad_norm: float = 0.0) -> Any:
+                   max_grad_norm: float = 0.0, flat: bool = False) -> Any:
     """Adam (AdamW when ``weight_decay`` > 0), after global-norm clipping when ``max_grad_norm`` > 0;
-    ``opt`` is optax or ``unilab_mlx.optim``."""
+    ``opt`` is optax or ``unilab_mlx.optim``. ``flat`` (optax only): the chain runs on one vector of all the
+    parameters (``optax.flatten``): the same arithmetic element by element, in a few fused kernels instead of a few
+    per parameter array (on the H100, 93 parameter-shaped kernels per gradient step: docs/perf/learner_scaling.md
+    section 1); its moments are then flat vectors."""
     parts = []
     if max_grad_norm > 0:
         parts.append(opt.clip_by_global_norm(max_grad_norm))
     parts.append(opt.adamw(learning_rate, weight_decay=weight_decay) if weight_decay > 0
                  else opt.adam(learning_rate))
-    return opt.chain(*parts)
+    if flat and not hasattr(opt, "flatten"):
+        raise ValueError("flat_optimizer=True: the JAX learners only (the MLX optimizers keep one state per array)")
+    return opt.flatten(opt.chain(*parts)) if flat else opt.chain(*parts)
 
 
 def init_on_numpy(init_params: Any, key_words: np.ndarray, xp: shim.Backend, *args: Any,
@@ -153,8 +158,10 @@ class SACFamilyBase:
         if self.image_shape:
             self.critic_loss, self.actor_loss = image_obs.critic_loss(algo), image_obs.actor_loss(algo)
             self.batch_fields = BATCH_FIELDS + IMAGE_FIELDS
-        self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
-        self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
+        self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm,
+                                       config.flat_optimizer)
+        self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm,
+                                        config.flat_optimizer)
         self.alpha_tx = opt.adam(config.alpha_learning_rate)
         self.target_entropy = float(config.target_entropy_per_dim * spec.action_dim)
         hooks = contract.hooks(algo)  # the optional hooks, defaults filled in
@@ -358,8 +365,10 @@ class TD3Base:
     def __init__(self, config: Any, spec: Any, opt: ModuleType, xp: shim.Backend):
         image_obs.check_algo(td3, spec, config)
         self.config, self.spec, self.xp = config, spec, xp
-        self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
-        self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
+        self.actor_tx = make_optimizer(opt, config.actor_learning_rate, config.weight_decay, config.max_grad_norm,
+                                       config.flat_optimizer)
+        self.critic_tx = make_optimizer(opt, config.critic_learning_rate, config.weight_decay, config.max_grad_norm,
+                                        config.flat_optimizer)
         self.trace_count = 0
 
     def init_params(self, key_words: np.ndarray) -> dict:
