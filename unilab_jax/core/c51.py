@@ -117,11 +117,10 @@ def categorical_projection_uniform(next_probs: Any, rewards: Any, discounts: Any
     below, above = xp.maximum(-tau, 0.0), xp.maximum(tau - 1.0, 0.0)
     weights = xp.stack([below, 1.0 - tau - 2.0 * below + above, tau + below - 2.0 * above, above])
     prefix = xp.cumulative_sum(weights * next_probs, axis=-1, include_initial=True)  # [4, B, K+1]
-    # Atom i receives row o (atom offset o - 1) of cell c = i + 1 - o: the prefix sum at ends[:, c + 3] minus
-    # the one at ends[:, c + 2].
-    window = [ends[:, s:s + k] for s in range(5)]
-    upper, lower = xp.stack(window[4:0:-1]), xp.stack(window[3::-1])  # [4, B, K] each
-    out = xp.sum(xp.take_along_axis(prefix, upper, axis=-1) - xp.take_along_axis(prefix, lower, axis=-1), axis=0)
+    at_ends = xp.take_along_axis(prefix, ends[None, ...], axis=-1)  # [4, B, K+4]
+    cells = at_ends[..., 1:] - at_ends[..., :k + 3]  # [4, B, K+3]: row o summed over cell c at c + 2
+    # Atom i receives row o (atom offset o - 1) of cell i + 1 - o.
+    out = cells[0, :, 3:k + 3] + cells[1, :, 2:k + 2] + cells[2, :, 1:k + 1] + cells[3, :, :k]
     return xp.stop_gradient(out)
 
 
