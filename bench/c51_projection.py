@@ -4,8 +4,8 @@ kernel of the real FastSAC update.
     python bench/c51_projection.py --batch 8192 --atoms 101 --out bench/results/h100/c51_projection.json
 
 Each variant maps target-critic logits [2, B, K], rewards [B] and discounts [B] to the projected target
-[B, K] in one ``jax.jit`` (softmax, clipped-double-Q choice, projection), as ``fastsac.categorical_target``
-does. Timings are medians of ``--repeats`` calls, each waited on.
+[B, K] on the support ``uniform_support(-0.5, 1.5, K)`` in one ``jax.jit`` (softmax, clipped-double-Q choice,
+projection), as ``fastsac.categorical_target`` does. Timings are medians of ``--repeats`` calls, each waited on.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ import jax.numpy as jnp  # noqa: E402
 from unilab_jax import xp as shim  # noqa: E402
 from unilab_jax.core import c51  # noqa: E402
 
+V_MIN, V_MAX = -0.5, 1.5
+
 
 def _choose(logits, atoms):
     probs = jax.nn.softmax(logits, axis=-1)
@@ -38,8 +40,15 @@ def _choose(logits, atoms):
 
 
 def library(logits, rewards, discounts, atoms):
-    """``core.c51.categorical_projection`` as shipped (inputs materialised before the [B, K, K] weight)."""
+    """``core.c51.categorical_projection``, the dense form for any support (inputs materialised before the
+    [B, K, K] weight)."""
     return c51.categorical_projection(atoms, _choose(logits, atoms), rewards, discounts)
+
+
+def uniform(logits, rewards, discounts, atoms):
+    """``core.c51.categorical_projection_uniform``, the O(B K) form FastSAC uses (prefix sums gathered at the
+    ends of each cell's range of sources)."""
+    return c51.categorical_projection_uniform(_choose(logits, atoms), rewards, discounts, v_min=V_MIN, v_max=V_MAX)
 
 
 def library_fusable(logits, rewards, discounts, atoms):
@@ -69,7 +78,7 @@ def scatter(logits, rewards, discounts, atoms):
     return out.reshape(z.shape)
 
 
-VARIANTS = {"library": library, "library_fusable": library_fusable, "scatter": scatter}
+VARIANTS = {"library": library, "library_fusable": library_fusable, "scatter": scatter, "uniform": uniform}
 
 
 def _time(fn, args, repeats):
@@ -94,7 +103,7 @@ def main() -> None:
     args = ap.parse_args()
     rng = np.random.default_rng(0)
     b, k = args.batch, args.atoms
-    atoms = jnp.linspace(-0.5, 1.5, k, dtype=jnp.float32)
+    atoms = c51.uniform_support(V_MIN, V_MAX, k, shim.get("jax"))
     inputs = (jnp.asarray(rng.normal(size=(2, b, k)), jnp.float32), jnp.asarray(rng.random(b) * 0.05, jnp.float32),
               jnp.asarray(np.where(rng.random(b) < 0.02, 0.0, 0.97), jnp.float32), atoms)
     rows, ref = [], None

@@ -64,6 +64,22 @@ def test_extras_agree_across_backends(xp):
     np.testing.assert_array_equal(xp.asnumpy(xp.one_hot(idx, 3)), np.eye(3, dtype=np.float32)[[0, 2, 1]])
 
 
+def test_cumulative_sum_and_take_along_axis_agree_with_numpy(xp):
+    # Array API names the kernels use (c51.categorical_projection_uniform); MLX's cumulative_sum is adapted.
+    x = np.arange(12, dtype=np.float32).reshape(2, 2, 3) - 4.5
+    a = xp.from_numpy(x)
+    for axis, initial in ((-1, False), (-1, True), (1, True), (0, False)):
+        np.testing.assert_array_equal(xp.asnumpy(xp.cumulative_sum(a, axis=axis, include_initial=initial)),
+                                      np.cumulative_sum(x, axis=axis, include_initial=initial))
+    np.testing.assert_array_equal(xp.asnumpy(xp.cumulative_sum(a[0, 0, :], include_initial=True)),
+                                  [0.0, -4.5, -8.0, -10.5])
+    idx = np.array([[[2, 0, 0, 1]], [[1, 1, 2, 0]]], np.int32)  # [2, 1, 4]: broadcast over axis 1
+    np.testing.assert_array_equal(xp.asnumpy(xp.take_along_axis(a, xp.from_numpy(idx), axis=-1)),
+                                  np.take_along_axis(x, idx, axis=-1))
+    np.testing.assert_array_equal(xp.asnumpy(xp.floor(a)), np.floor(x))
+    np.testing.assert_array_equal(xp.asnumpy(xp.ceil(a)), np.ceil(x))
+
+
 def test_scan_matches_python_loop(xp):
     xs = np.arange(1.0, 6.0, dtype=np.float32)
 

@@ -65,6 +65,20 @@ class MlxBackend(_xp.Backend):
     def concat(self, arrays: list, axis: int = 0) -> mx.array:
         return mx.concatenate(list(arrays), axis=axis)
 
+    def cumulative_sum(self, x: mx.array, /, *, axis: int | None = None, dtype: Any = None,
+                       include_initial: bool = False) -> mx.array:
+        # mx.cumulative_sum is mx.cumsum, without the standard's include_initial (a leading zero on the axis).
+        if axis is None:
+            if x.ndim != 1:
+                raise ValueError("cumulative_sum needs axis for arrays of rank > 1")
+            axis = 0
+        out = mx.cumsum(x, axis=axis, dtype=dtype)
+        if not include_initial:
+            return out
+        shape = list(out.shape)
+        shape[axis] = 1
+        return mx.concatenate([mx.zeros(shape, dtype=out.dtype), out], axis=axis)
+
     def asnumpy(self, x: Any) -> np.ndarray:
         return np.array(x, copy=True)
 

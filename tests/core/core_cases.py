@@ -127,6 +127,8 @@ CASES = [
     Case("td3_critic_loss", td3.td3_critic_loss, lambda r: ((_n(r, B), _n(r, B), _n(r, B)), {})),
     Case("td3_actor_loss", td3.td3_actor_loss, lambda r: ((_n(r, B),), {})),
     Case("categorical_projection", c51.categorical_projection, lambda r: (_c51_inputs(r), {})),
+    Case("categorical_projection_uniform", c51.categorical_projection_uniform,
+         lambda r: (_c51_inputs(r)[1:], {"v_min": -5.0, "v_max": 5.0})),
     Case("categorical_critic_loss", c51.categorical_critic_loss,
          lambda r: ((_n(r, B, K), r.dirichlet(np.ones(K), size=B)), {})),
     Case("categorical_mean", c51.categorical_mean, lambda r: ((_n(r, B, K), np.linspace(-5.0, 5.0, K)), {})),

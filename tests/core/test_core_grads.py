@@ -77,8 +77,11 @@ def _sac_objective(params, batch):
 def _c51_objective(params, batch):
     xp = shim.namespace(params["w"])
     logits = xp.matmul(batch["obs"], params["w"])
-    target = c51.categorical_projection(batch["atoms"], batch["next_probs"], batch["rewards"],
-                                        batch["discounts"])
+    # Both projections (dense and uniform-support) in one compiled objective.
+    target = 0.5 * (c51.categorical_projection(batch["atoms"], batch["next_probs"], batch["rewards"],
+                                               batch["discounts"])
+                    + c51.categorical_projection_uniform(batch["next_probs"], batch["rewards"], batch["discounts"],
+                                                         v_min=-3.0, v_max=3.0))
     mean = xp.mean(c51.categorical_mean(logits, batch["atoms"]))
     return c51.categorical_critic_loss(logits, target), {"mean": mean}
 

@@ -11,7 +11,7 @@ Perspective on Reinforcement Learning" (ICML 2017). Design choices:
 * Critics: two C51 heads over a fixed support ``linspace(v_min, v_max, num_atoms)`` (101 atoms),
   one stacked ensemble, optional LayerNorm in the hidden layers (``critic_layer_norm``). The soft
   target distribution is ``r - gamma (1 - terminated) alpha log pi(a'|s') + gamma (1 - terminated) Z'``
-  projected onto the support (``core.c51.categorical_projection``, the Cramer/L2 projection);
+  projected onto the support (``core.c51.categorical_projection_uniform``, the Cramer/L2 projection);
   ``Z'`` is the target critic whose mean is smaller (clipped double Q, ``use_cdq``; the choice is
   made before projecting, so only one projection per sample is computed) or the average of both.
   Loss: the sum of both critics' cross-entropies to that target.
@@ -107,8 +107,8 @@ def init_params(key: Any, obs_dim: int, critic_obs_dim: int, action_dim: int, co
 
 
 def support(config: Any, xp: shim.Backend) -> Any:
-    """The fixed C51 support ``linspace(v_min, v_max, num_atoms)`` [K] (float32)."""
-    return xp.astype(xp.linspace(config.v_min, config.v_max, config.num_atoms), xp.float32)
+    """The fixed C51 support ``linspace(v_min, v_max, num_atoms)`` [K] (float32; ``c51.uniform_support``)."""
+    return c51.uniform_support(config.v_min, config.v_max, config.num_atoms, xp)
 
 
 def categorical_target(target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, mb: dict, eps_next: Any,
@@ -133,7 +133,8 @@ def categorical_target(target_critic: Any, actor: Any, log_alpha: Any, norms: No
         next_probs = 0.5 * (probs[0] + probs[1])
     d = discounts(mb, config.gamma)
     shifted = mb["reward"] / norms.reward_scale - d * xp.exp(log_alpha) * next_log_prob
-    return c51.categorical_projection(atoms, xp.stop_gradient(next_probs), xp.stop_gradient(shifted), d)
+    return c51.categorical_projection_uniform(xp.stop_gradient(next_probs), xp.stop_gradient(shifted), d,
+                                              v_min=config.v_min, v_max=config.v_max)
 
 
 def categorical_critic_loss(critic: Any, target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, mb: dict,
