@@ -3,7 +3,8 @@
 # First the Pallas kernels' GPU check (the compiled Triton kernels against XLA's programs), then
 # bench/learner_update.py rows, bf16, one per variant (xla: XLA's forward and backward; bwd: the Pallas backward;
 # fused: the Pallas forward and backward, what "auto" picks on one NVIDIA GPU; flat: fused, and the optimizers over
-# one flat parameter vector, flat_optimizer=true) for each recipe of RECIPES, REPEATS calls each; the last variant of the
+# one flat parameter vector, flat_optimizer=true; prefix: fused, and the C51 target's O(B K) projection,
+# projection=prefix) for each recipe of RECIPES, REPEATS calls each; the last variant of the
 # first recipe also traced (trace_summary) and its optimised HLO kept. Under $OUT: p31_ln.tgz with
 # lu_<recipe>_<variant>.json, trace_<recipe>_<variant>.json, hlo_<recipe>_<variant>.txt.gz, pytest.txt, setup.txt
 # (one archive: a call brings back at most 8 files).
@@ -24,7 +25,8 @@ for r in $RECIPES; do
       bwd) cfg="--config ln_forward=xla --config ln_backward=pallas" ;;
       fused) cfg="--config ln_forward=pallas --config ln_backward=pallas" ;;
       flat) cfg="--config ln_forward=pallas --config ln_backward=pallas --config flat_optimizer=true" ;;
-      *) echo "variant must be xla, bwd, fused or flat"; exit 2 ;;
+      prefix) cfg="--config ln_forward=pallas --config ln_backward=pallas --config projection=prefix" ;;
+      *) echo "variant must be xla, bwd, fused, flat or prefix"; exit 2 ;;
     esac
     extra=""; flags=""
     if [ "$r" = "$first" ] && [ "$v" = "$last" ]; then

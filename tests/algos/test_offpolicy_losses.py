@@ -182,6 +182,12 @@ def test_categorical_target_uses_the_smaller_critic_and_keeps_the_mean():
                                         fastsac.Config(num_atoms=11, v_min=-10.0, v_max=10.0, gamma=0.5,
                                                        use_cdq=False))
     np.testing.assert_allclose(no_cdq @ atoms, mb["reward"] + d * (1.0 - 0.1 * lp), rtol=1e-4, atol=1e-4)
+    for use_cdq, dense in ((True, target), (False, no_cdq)):  # the O(B K) projection: the same target
+        prefix = fastsac.categorical_target(critic, actor, log_alpha, norms, mb, eps, fastsac.Config(
+            num_atoms=11, v_min=-10.0, v_max=10.0, gamma=0.5, use_cdq=use_cdq, projection="prefix"))
+        np.testing.assert_allclose(prefix, dense, atol=1e-6)
+    with pytest.raises(ValueError, match="projection"):
+        fastsac.Config(projection="sparse")
 
 
 def test_flash_networks_are_norm_bounded_on_numpy():

@@ -11,7 +11,8 @@ Perspective on Reinforcement Learning" (ICML 2017). Design choices:
 * Critics: two C51 heads over a fixed support ``linspace(v_min, v_max, num_atoms)`` (101 atoms),
   one stacked ensemble, optional LayerNorm in the hidden layers (``critic_layer_norm``). The soft
   target distribution is ``r - gamma (1 - terminated) alpha log pi(a'|s') + gamma (1 - terminated) Z'``
-  projected onto the support (``core.c51.categorical_projection_uniform``, the Cramer/L2 projection);
+  projected onto the support (the Cramer/L2 projection: ``core.c51.categorical_projection``, or with
+  ``projection="prefix"`` ``categorical_projection_uniform``, the same in O(B K) work);
   ``Z'`` is the target critic whose mean is smaller (clipped double Q, ``use_cdq``; the choice is
   made before projecting, so only one projection per sample is computed) or the average of both.
   Loss: the sum of both critics' cross-entropies to that target.
@@ -69,12 +70,17 @@ class CategoricalSACConfig(SACConfig):
     v_min: float = -10.0
     v_max: float = 10.0
     use_cdq: bool = True
+    # The target's projection onto the support: "dense" (``c51.categorical_projection``, a [B, K, K] weight) or
+    # "prefix" (``c51.categorical_projection_uniform``: prefix sums, O(B K)); the same result up to float32 rounding.
+    projection: str = "dense"
 
     def problems(self) -> list[str]:
         problems = super().problems()
         if self.num_atoms < 2 or not self.v_min < self.v_max:
             problems.append(f"need num_atoms >= 2 and v_min < v_max (got {self.num_atoms}, "
                             f"[{self.v_min}, {self.v_max}])")
+        if self.projection not in ("dense", "prefix"):
+            problems.append(f"projection must be 'dense' or 'prefix', got {self.projection!r}")
         return problems
 
 
@@ -133,8 +139,10 @@ def categorical_target(target_critic: Any, actor: Any, log_alpha: Any, norms: No
         next_probs = 0.5 * (probs[0] + probs[1])
     d = discounts(mb, config.gamma)
     shifted = mb["reward"] / norms.reward_scale - d * xp.exp(log_alpha) * next_log_prob
-    return c51.categorical_projection_uniform(xp.stop_gradient(next_probs), xp.stop_gradient(shifted), d,
-                                              v_min=config.v_min, v_max=config.v_max)
+    if config.projection == "prefix":
+        return c51.categorical_projection_uniform(xp.stop_gradient(next_probs), xp.stop_gradient(shifted), d,
+                                                  v_min=config.v_min, v_max=config.v_max)
+    return c51.categorical_projection(atoms, xp.stop_gradient(next_probs), xp.stop_gradient(shifted), d)
 
 
 def categorical_critic_loss(critic: Any, target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, mb: dict,
