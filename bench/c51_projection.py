@@ -46,8 +46,8 @@ def library(logits, rewards, discounts, atoms):
 
 
 def uniform(logits, rewards, discounts, atoms):
-    """``core.c51.categorical_projection_uniform``, the O(B K) form FastSAC uses (prefix sums gathered at the
-    ends of each cell's range of sources)."""
+    """``core.c51.categorical_projection_uniform``, the O(B K) form (FastSAC's ``projection="prefix"``: prefix
+    sums gathered at the ends of each cell's range of sources)."""
     return c51.categorical_projection_uniform(_choose(logits, atoms), rewards, discounts, v_min=V_MIN, v_max=V_MAX)
 
 

@@ -3,7 +3,7 @@
 ``atoms`` is the fixed support [K] (increasing; usually ``linspace(v_min, v_max, K)``); ``logits``
 and ``probs`` are [B, K]. Two projections give the same result: ``categorical_projection`` for any
 increasing support (memory and work B K^2), ``categorical_projection_uniform`` for the support
-``linspace(v_min, v_max, K)`` (memory and work B K; the one FastSAC uses).
+``linspace(v_min, v_max, K)`` (memory and work B K; FastSAC's and FlashSAC's ``projection="prefix"``).
 """
 
 from __future__ import annotations
