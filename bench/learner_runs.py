@@ -68,6 +68,7 @@ def main() -> None:
                 "walking_reached": rec["walking_reached"], "time_to_walking_s": rec.get("time_to_walking_s"),
                 "env_steps_at_walking": rec.get("env_steps_at_walking"),
                 "first_train_row_wall_s": rec.get("first_train_row_wall_s"),
+                "startup": rec.get("startup", {}),
                 "env_steps_per_s_median": rec.get("env_steps_per_s_median"),
                 "window": rates(rows, args.start, args.end, steps_per_call),
                 "from_start": rates(rows, args.start, float("inf"), steps_per_call)})

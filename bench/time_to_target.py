@@ -57,6 +57,7 @@ import json
 import math
 import os
 import platform
+import re
 import shutil
 import signal
 import socket
@@ -413,12 +414,30 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
         os.makedirs(args.metrics_dir, exist_ok=True)
         record["metrics_copy"] = os.path.join(args.metrics_dir, f"{name}_s{seed}_{stamp}.jsonl")
         shutil.copyfile(reader.path, record["metrics_copy"])
+    record["startup"] = startup(open(os.path.join(logdir, "stdout.log"), errors="replace").read())
     summary_path = os.path.join(logdir, "summary.json")
     if os.path.exists(summary_path):
         record["run_summary"] = json.load(open(summary_path))
     if proc.returncode not in (0, None):  # a crash, or a run stopped at the budget that failed to shut down cleanly
         record["stdout_tail"] = open(os.path.join(logdir, "stdout.log")).read()[-3000:]
     return record
+
+
+# The trainer's start-up milestones (``unilab_jax.training.trainer``'s log lines, seconds from the process start).
+STARTUP_LINES = {"learner_state_s": r"learner state ready ([0-9.]+) s after the start",
+                 "workers_started_s": r"workers started ([0-9.]+) s after the start",
+                 "update_compile_s": r"update compiled ahead of the first call in ([0-9.]+) s",
+                 "update_compiled_s": r"update compiled ahead of the first call in [0-9.]+ s, ([0-9.]+) s after"}
+
+
+def startup(log_text: str) -> dict[str, float]:
+    """The start-up milestones a run's log names (the first of each; absent ones left out)."""
+    found = {}
+    for key, pattern in STARTUP_LINES.items():
+        m = re.search(pattern, log_text)
+        if m:
+            found[key] = float(m.group(1))
+    return found
 
 
 def latest_run(runs_dir: str, name: str, seed: int) -> str:

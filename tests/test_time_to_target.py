@@ -288,3 +288,14 @@ def test_resume_continues_the_latest_run_and_the_report_counts_it_once(tmp_path)
         ttt.run_one("fake", 3, ttt.parse_args(["--only", "fastsac_async", "--runs_dir", runs, "--resume"]), cfg=cfg)
     with pytest.raises(SystemExit):  # the MJX loop keeps no checkpoint
         ttt.parse_args(["--only", "mjx_ppo", "--resume"])
+
+
+def test_startup_reads_the_trainers_milestones():
+    log = ("I1127 06:30:35.787 trainer.py:319] learner state ready 9.5 s after the start\n"
+           "I1127 06:30:40.676 trainer.py:365] 13 workers started 14.4 s after the start\n"
+           "[fastsac] eval 3.1 at 1,000,000 steps\n"
+           "I1127 06:30:50.776 trainer.py:532] update compiled ahead of the first call in 15.0 s, 24.5 s after the "
+           "start\n")
+    assert ttt.startup(log) == {"learner_state_s": 9.5, "workers_started_s": 14.4, "update_compile_s": 15.0,
+                                "update_compiled_s": 24.5}
+    assert ttt.startup("no milestones here") == {}
