@@ -418,8 +418,8 @@ def test_bf16_learns_the_contextual_bandit(name):
 class _Device:
     """What ``learner_common.ln_kernels`` reads of a jax device."""
 
-    def __init__(self, platform: str, version: str, capability: str | None):
-        self.platform, self.compute_capability = platform, capability
+    def __init__(self, platform: str, version: str, capability: str | None, kind: str = ""):
+        self.platform, self.compute_capability, self.device_kind = platform, capability, kind
         self.client = type("Client", (), {"platform_version": version})()
 
 
@@ -429,7 +429,8 @@ class _Device:
     ([_Device("gpu", "cuda 12080", "7.5")], "bfloat16", "xla"),        # Turing: no bf16 in Triton
     ([_Device("gpu", "cuda 12080", "9.0")] * 2, "bfloat16", "xla"),    # a Pallas call is one device's program
     ([_Device("gpu", "cuda 12080", "9.0")], "float32", "xla"),         # the float32 program has no bf16 layers
-    ([_Device("gpu", "rocm 60342", "gfx942")], "bfloat16", "xla"),     # ROCm
+    ([_Device("gpu", "rocm 60342", "gfx942", "AMD Instinct MI300X")], "bfloat16", "xla"),  # ROCm
+    ([_Device("gpu", "<unknown>", "9.0", "NVIDIA H100 80GB HBM3")], "bfloat16", "pallas"),  # named by its kind only
     ([_Device("cpu", "cpu", None)], "bfloat16", "xla"),
 ])
 def test_auto_ln_kernels_are_pallas_on_one_nvidia_gpu_only(devices, dtype, want):
@@ -446,3 +447,12 @@ def test_learner_on_this_cpu_resolves_auto_to_xla():
     assert learner.ln_kernels == ("xla", "xla")
     state, batch = learner.init(jax.random.PRNGKey(0)), _batch(np.random.default_rng(0), 2)
     assert "pallas_call" not in str(jax.make_jaxpr(learner.traced_update)(state, batch))
+
+
+@pytest.mark.skipif(jax.default_backend() != "gpu", reason="reads a real GPU (bench/p31_ln.sh runs it on the H100)")
+def test_auto_ln_kernels_pick_pallas_on_this_nvidia_gpu():
+    """What the fake devices above stand for: this jax's CUDA device names its platform and compute capability."""
+    device = jax.devices()[0]
+    assert "cuda" in device.client.platform_version.lower() and "nvidia" in device.device_kind.lower()
+    assert int(device.compute_capability.split(".")[0]) >= 8
+    assert common.ln_kernels(algos.get("fastsac").Config(), "bfloat16", [device]) == ("pallas", "pallas")

@@ -56,7 +56,8 @@ def ln_kernels(config: Any, compute_dtype: str, devices: list[Any]) -> tuple[str
 
 def _cuda_major(device: Any) -> int:
     """The CUDA compute capability's major number of a jax ``device``; 0 for any other device."""
-    if device.platform != "gpu" or "cuda" not in str(getattr(device.client, "platform_version", "")).lower():
+    names = f"{getattr(device.client, 'platform_version', '')} {getattr(device, 'device_kind', '')}".lower()
+    if device.platform != "gpu" or ("cuda" not in names and "nvidia" not in names):
         return 0
     try:
         return int(str(getattr(device, "compute_capability", "0")).split(".")[0])
