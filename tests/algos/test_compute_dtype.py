@@ -416,7 +416,7 @@ def test_bf16_learns_the_contextual_bandit(name):
 
 
 class _Device:
-    """What ``learner_common.ln_kernels`` reads of a jax device."""
+    """What ``learner_common.resolve_ln_kernels`` reads of a jax device."""
 
     def __init__(self, platform: str, version: str, capability: str | None, kind: str = ""):
         self.platform, self.compute_capability, self.device_kind = platform, capability, kind
@@ -436,9 +436,9 @@ class _Device:
 def test_auto_ln_kernels_are_pallas_on_one_nvidia_gpu_only(devices, dtype, want):
     auto = algos.get("fastsac").Config()
     assert (auto.ln_forward, auto.ln_backward) == ("auto", "auto")
-    assert common.ln_kernels(auto, dtype, devices) == (want, want)
+    assert common.resolve_ln_kernels(auto, dtype, devices) == (want, want)
     chosen = dataclasses.replace(auto, ln_forward="xla", ln_backward="pallas")
-    assert common.ln_kernels(chosen, dtype, devices) == ("xla", "pallas")  # a name other than "auto" is kept
+    assert common.resolve_ln_kernels(chosen, dtype, devices) == ("xla", "pallas")  # a name other than "auto" is kept
 
 
 def test_learner_on_this_cpu_resolves_auto_to_xla():
@@ -455,4 +455,4 @@ def test_auto_ln_kernels_pick_pallas_on_this_nvidia_gpu():
     device = jax.devices()[0]
     assert "cuda" in device.client.platform_version.lower() and "nvidia" in device.device_kind.lower()
     assert int(device.compute_capability.split(".")[0]) >= 8
-    assert common.ln_kernels(algos.get("fastsac").Config(), "bfloat16", [device]) == ("pallas", "pallas")
+    assert common.resolve_ln_kernels(algos.get("fastsac").Config(), "bfloat16", [device]) == ("pallas", "pallas")

@@ -89,7 +89,7 @@ class DataParallel:
             raise ValueError(f"device split must be one of {SPLITS}, got {split!r}")
         self.learner, self.split = learner, split
         if hasattr(learner, "ln_kernels"):  # "auto" on several devices: XLA's programs (make refuses "pallas")
-            learner.ln_kernels = common.ln_kernels(learner.config, learner.compute_dtype, devices)
+            learner.ln_kernels = common.resolve_ln_kernels(learner.config, learner.compute_dtype, devices)
         self.config, self.spec = learner.config, learner.spec
         self.mesh = Mesh(np.asarray(devices), (AXIS,))
         self.replicated = NamedSharding(self.mesh, P())

@@ -31,9 +31,9 @@ class OffPolicyConfig(SelfChecking):
     layers -- "xla" (the XLA programs of ``mixed_precision._ln_fwd`` / ``_ln_bwd``), "pallas" (one fused Pallas
     kernel per layer and pass, ``unilab_jax.pallas_kernels``; for one device: XLA's SPMD partitioner does not
     split a Pallas call, so ``training.sharding`` refuses them on several devices) or "auto" (the default: "pallas"
-    on one NVIDIA GPU, "xla" elsewhere; ``learner_common.ln_kernels``). The float32 program and the MLX learners
-    ignore them. ``flat_optimizer``: the actor's and critics' optimizers over one flat vector of their parameters
-    (``learner_common.make_optimizer``; the same arithmetic in fewer kernels); the MLX learners refuse it.
+    on one NVIDIA GPU, "xla" elsewhere; ``learner_common.resolve_ln_kernels``). The float32 program and the MLX
+    learners ignore them. ``flat_optimizer``: the actor's and critics' optimizers over one flat vector of their
+    parameters (``learner_common.make_optimizer``; the same arithmetic in fewer kernels); the MLX learners refuse it.
     """
 
     actor_hidden: tuple[int, ...] = (256, 256)

@@ -44,7 +44,7 @@ def compute_dtype(config: Any, backend: str) -> str:
     return name
 
 
-def ln_kernels(config: Any, compute_dtype: str, devices: list[Any]) -> tuple[str, str]:
+def resolve_ln_kernels(config: Any, compute_dtype: str, devices: list[Any]) -> tuple[str, str]:
     """The (forward, backward) kernels of the bf16 LayerNorm + ReLU layers for ``config.ln_forward`` /
     ``ln_backward`` on ``devices``: "auto" is "pallas" for a bf16 learner on ONE NVIDIA GPU of compute capability
     >= 8 (Ampere and later: bf16 in Triton; the fused kernels take the H100 learner from 514 to 605 gradient steps/s,

@@ -25,8 +25,9 @@ for tests and tiny networks) go to ``jax.jit``. ``trace_count`` counts traces of
 the update is traced inside ``xp.compute_dtype``, so with "bfloat16" every network matmul (forward and
 backward) takes bf16 operands with float32 accumulation and results; parameters, optimizer states,
 norms, softmax, the C51 projection, log-probs and losses stay float32. "float32" traces exactly the
-float32 program. ``config.ln_forward`` / ``ln_backward`` ("auto", "xla" or "pallas": ``learner_common.ln_kernels``,
-``mixed_precision.ln_kernels``) pick the forward / backward pass of the bf16 LayerNorm + ReLU layers.
+float32 program. ``config.ln_forward`` / ``ln_backward`` ("auto", "xla" or "pallas":
+``learner_common.resolve_ln_kernels``, ``mixed_precision.ln_kernels``) pick the forward / backward pass of the bf16
+LayerNorm + ReLU layers.
 """
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ class _Jitted:
     def _compile(self, compiler_options: dict | None) -> None:
         self.compute_dtype = common.compute_dtype(self.config, jax.default_backend())
         # for one device; training.sharding.DataParallel sets its own (XLA's programs) before it compiles
-        self.ln_kernels = common.ln_kernels(self.config, self.compute_dtype, jax.devices()[:1])
+        self.ln_kernels = common.resolve_ln_kernels(self.config, self.compute_dtype, jax.devices()[:1])
         self._update_jit = jax.jit(self.traced_update, donate_argnums=DONATE_STATE, compiler_options=compiler_options)
         self._init_state = jax.jit(self.initial_state, compiler_options=compiler_options)
 
