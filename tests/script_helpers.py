@@ -32,7 +32,7 @@ def run(script: str, *args: str, timeout: float = 600) -> subprocess.CompletedPr
 def run_in_process(script: str, *args: str) -> subprocess.CompletedProcess:
     """``experiments/SCRIPT`` run as ``__main__`` here with ``sys.argv = [SCRIPT, *ARGS]``: its exit status
     (``SystemExit``'s code; 0 if it returns) and what it printed. Flags, signal handlers, logging handlers and
-    absl's verbosity are restored afterwards, so runs do not see each other's flags."""
+    absl's and this package's log levels are restored afterwards, so runs do not see each other's flags."""
     from absl import flags
     from absl import logging as absl_logging
     from absl.testing import flagsaver
@@ -45,6 +45,7 @@ def run_in_process(script: str, *args: str) -> subprocess.CompletedProcess:
     out, err = io.StringIO(), io.StringIO()
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     root_handlers, verbosity = list(logging.getLogger().handlers), absl_logging.get_verbosity()
+    package_level = logging.getLogger("unilab_jax").level
     code = 0
     try:
         with flagsaver.flagsaver(), mock.patch.object(sys, "argv", [path, *args]), \
@@ -61,4 +62,5 @@ def run_in_process(script: str, *args: str) -> subprocess.CompletedProcess:
             signal.signal(s, h)
         logging.getLogger().handlers[:] = root_handlers
         absl_logging.set_verbosity(verbosity)
+        logging.getLogger("unilab_jax").setLevel(package_level)
     return subprocess.CompletedProcess([path, *args], code, out.getvalue(), err.getvalue())

@@ -384,13 +384,15 @@ def report(summary: Mapping[str, Any]) -> None:
 def launch(validate: Callable[[], Any], train: Callable[[Any], None],
            errors: tuple[type[Exception], ...] = (), help: Callable[[], str] | None = None) -> None:
     """The absl ``main`` of every experiment launcher: quiet logging unless ``-v`` is given (orbax logs every
-    save at INFO), no stray arguments, ``validate()`` -- a flag or config error (or one of ``errors``) exits
+    save at INFO; this package's own INFO lines, the start-up milestones and what a resume restored, stay),
+    no stray arguments, ``validate()`` -- a flag or config error (or one of ``errors``) exits
     with code 2 and a message before anything starts -- then ``train(validate())``, where a damaged checkpoint
     or replay index (found when it is opened, before training) exits with code 2 and its message too."""
 
     def main(argv: list[str]) -> None:
         if not any(a.startswith(("-v", "--v")) for a in sys.argv[1:]):
             absl_logging.set_verbosity(absl_logging.WARNING)
+            logging.getLogger("unilab_jax").setLevel(logging.INFO)
         if len(argv) > 1:
             raise app.UsageError(f"unexpected arguments: {argv[1:]}")
         from unilab_jax.config import ConfigError
