@@ -14,7 +14,8 @@ The flat task (``tasks/go1_joystick.py``: model, MDP, rewards, domain randomisat
 * Rewards: the feet's heights (``feet_clearance``, ``feet_height``) are heights above the ground under each foot.
 * Domain randomisation: the flat task's, plus motor strength (each motor's Kp and Kd x U(0.9, 1.1), per env)
   and action latency (the motors get the action of 0 or 1 control steps ago, per env).
-* Truncation also when a robot comes within 1 m of the map's edge (``off_map``); termination as on flat ground.
+* Truncation also when a robot comes within 1 m of the map's edge (``off_map``) or its base leaves ``base_height_band``
+  above the ground under it (``rough.out_of_band``); termination as on flat ground.
 * Episode metrics ``terrain_level`` and ``terrain_level_<k>`` (the level histogram); evaluation:
   ``rough.TerrainEval`` (upper-half levels, per-type walking numbers).
 * Terrain defaults, scaled to Go1 (about half of ANYmal's leg length, for which legged_gym's ranges are set):

@@ -107,7 +107,8 @@ class RoughMjx:
     def at_limit(self, data: Any) -> jax.Array:
         x0, x1, y0, y1 = self.bounds
         x, y = data.qpos[:, 0], data.qpos[:, 1]
-        return (x < x0) | (x > x1) | (y < y0) | (y > y1)
+        band = rough.out_of_band(data.qpos[:, 2] - self.ground(data.qpos), self.rough_config.base_height_band)
+        return (x < x0) | (x > x1) | (y < y0) | (y > y1) | band
 
     def after_transition(self, before: Any, state: Any, out: mg.MjxStepOut, ended: jax.Array,
                          key: jax.Array) -> tuple[Any, mg.MjxStepOut]:

@@ -15,7 +15,8 @@ A task composes one ``TerrainState`` (``tasks/go1_rough.py``: ``go1_joystick_rou
   reward's maximum); envs that diverged (MuJoCo instability) keep their level;
 * observation: ``scan`` is the height scan (``terrain.height_scan``: 17 x 11 points, 0.1 m apart, around the base,
   turned with its heading), appended to the critic observation and, with ``perceptive``, to the actor's;
-* truncation: ``off_map`` ends episodes of robots within 1 m of the map's edge;
+* truncation: ``off_map`` ends episodes of robots within 1 m of the map's edge, ``out_of_band`` those of robots
+  whose base left ``base_height_band`` above the ground under it (through the heightfield, or thrown);
 * metrics: ``episode_metrics`` (``METRICS``: the ended episodes' ``terrain_level`` and the level histogram
   ``terrain_level_<k>``, logged by the trainer as ``episode/...``); ``TerrainEval``, the evaluation tracker:
   env i on column ``i mod columns`` at a level of the upper half (``levels // 2`` and above), curricula frozen,
@@ -71,6 +72,12 @@ class RoughConfig:
     # ground: docs/TERRAIN.md); the stiffer contact (time constant 0.01 s, >= 2 physics steps of every task here)
     # makes that rarer
     terrain_solref: tuple[float, ...] = (0.01, 1.0)
+    # A base whose height above the ground under it leaves this band (metres) has fallen through the heightfield or
+    # been thrown by a contact that came too late, neither of which MuJoCo flags: its episode is truncated, as at the
+    # map's edge (a task's own termination, e.g. a base below ``min_base_height``, wins). In a Go2 run a robot flew
+    # on for the rest of its episode: its penalties, 1e7-1e8, set FlashSAC's reward scale 7e4 times higher and the
+    # policy collapsed (docs/TERRAIN.md). Standing, lying, stepping off the tallest terrain or jumping stays inside.
+    base_height_band: tuple[float, float] = (-0.5, 3.0)
     spawn_radius: float = 0.05  # metres around each foot whose highest ground sets the spawn height
     perceptive: bool = False  # True: the actor sees the height scan too (the critic always does)
     scan_shape: tuple[int, int] = (17, 11)
@@ -124,6 +131,11 @@ def resumed_level_weights(metrics_path: str, num_levels: int, window_s: float) -
     last = [r for r in rows if r["time/wall_s"] >= end - window_s]
     mean = [sum(r[k] for r in last) / len(last) for k in keys]
     return tuple(round(m, 4) for m in mean) if sum(mean) > 0 else ()
+
+
+def out_of_band(base_height: Any, band: tuple[float, float]) -> Any:
+    """[M] bool: base heights above the ground (numpy or jax) outside ``band = (low, high)``."""
+    return (base_height < band[0]) | (base_height > band[1])
 
 
 def terrain_config(c: RoughConfig) -> terrain.TerrainConfig:
@@ -303,7 +315,9 @@ class RoughTask:
         return obs, np.concatenate([critic_obs, scan], axis=1)
 
     def at_limit(self) -> np.ndarray:
-        return super().at_limit() | self.rough.off_map(self.sim.qpos)
+        qpos = self.sim.qpos
+        return (super().at_limit() | self.rough.off_map(qpos)
+                | out_of_band(qpos[:, 2] - self.base_ground(), self.rough.config.base_height_band))
 
     def base_ground(self) -> np.ndarray:
         """[M] the ground under each base."""

@@ -207,3 +207,23 @@ def test_g1_heights_above_ground_and_motor_strength_match_cpu(g1):
         np.testing.assert_allclose(np.asarray(fields[k]), cpu_field, rtol=1e-6, atol=1e-6, err_msg=k)
     queue = g1.init_extra(jax.random.PRNGKey(0), {k: _f32(v) for k, v in task.dr.items()}, M)
     np.testing.assert_array_equal(np.asarray(queue["delay"]), task.delay.delays)
+
+
+def test_a_base_through_the_ground_or_thrown_truncates_on_both_engines(g1):
+    """``base_height_band``: a G1 whose pelvis is 1 m under the ground under it (fallen through the heightfield) or
+    4 m above it (thrown) is at its limit on the CPU task and on MJX; one standing or lying on the ground is not."""
+    task, _ = _cpu_task("g1_walk_rough", steps=3)
+    assert task.rough.config.base_height_band == (-0.5, 3.0)
+    qpos, qvel = task.sim.qpos.copy(), task.sim.qvel.copy()
+    ground = task.base_ground()
+    qpos[0, 2] = ground[0] - 1.0  # through the ground
+    qpos[1, 2] = ground[1] + 4.0  # thrown
+    qpos[2, 2] = ground[2] + 0.1  # lying on it
+    task.sim.set_state(np.arange(M), qpos, qvel)
+    np.testing.assert_array_equal(task.at_limit(), [True, True, False, False])
+    np.testing.assert_array_equal(np.asarray(g1.at_limit(_data(g1, qpos, qvel))), [True, True, False, False])
+    # a step from there ends both episodes (the sunk one also under G1's min_base_height, a termination, which wins;
+    # the thrown one truncated): their robots restart on their cells
+    out = task.step(np.zeros((M, task.spec.action_dim), np.float32))
+    assert out.terminated[0] and out.truncated[1] and not out.terminated[1]
+    assert (task.sim.qpos[:2, 2] - task.base_ground()[:2] > 0.5).all()

@@ -53,6 +53,16 @@ def test_heights_are_above_the_ground():
     # (base height above the ground - 0.3)^2 x 20 x 0.02: small for a standing robot, ~0.3 if it read 1 m of cell
     assert np.abs(out.reward_terms["base_height"]).max() < 2e-3
     assert go2.sim.qpos[:, 2].max() > 1.0
+    # a Go2 thrown 4 m above the ground (nothing else ends its episode: a GPU run's base-height penalty of a robot
+    # flying on for the episode reached 1e7-1e8) is truncated at once, its reward that of one step; one under the
+    # ground terminates (min_base_height 0 above the ground under it)
+    qpos, qvel = go2.sim.qpos.copy(), go2.sim.qvel.copy()
+    qpos[0, 2] = go2.base_ground()[0] + 4.0
+    qpos[1, 2] = go2.base_ground()[1] - 1.0
+    go2.sim.set_state(np.arange(7), qpos, qvel)
+    out = go2.step(np.zeros((7, 12), np.float32))
+    assert out.truncated[0] and not out.terminated[0] and out.terminated[1] and not out.truncated[1:].any()
+    assert -10.0 < out.reward[0] < 0.0
     go2.close()
 
 
