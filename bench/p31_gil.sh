@@ -22,7 +22,7 @@
 #   c:K=V     the recipe's config field K set to V (--config=K=V), e.g. c:batch_size=4096
 #   A+B       both parts, e.g. ln+c:utd=0.01171875 (the Pallas kernels and 12 gradient steps per 1024 transitions)
 #   f:F=V     the experiment flag --F=V, e.g. f:envs_per_worker=128 (after the configuration's own: it wins)
-# Each run starts from an empty compilation cache of its own (JAX_COMPILATION_CACHE_DIR), so runs compare like for
+# Each run starts from an empty compilation cache of its own (time_to_target.py's default), so runs compare like for
 # like whatever ran before on the machine. SEEDS (default: SEED) runs every variant for each seed, variants inner.
 #   VARIANTS="base w15" SEEDS="0 1 2" MAXS=160 bash bench/p31_gil.sh
 set -u
@@ -36,7 +36,7 @@ plugin=$(python3 -c 'import os, jax_plugins.xla_cuda12 as p; print(os.path.dirna
   "$(grep -l TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE "$plugin"/*.so 2>/dev/null | wc -l)"
 for seed in ${SEEDS:-${SEED:-0}}; do
 for v in ${VARIANTS:-base noeval swi}; do
-  run=$(echo "${v}" | tr ':=+' '___')_s$seed; cache=$(mktemp -d)
+  run=$(echo "${v}" | tr ':=+' '___')_s$seed
   extra=(); pp=$PYTHONPATH; xf=${XLA_FLAGS:-}; sched=${TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE:-}; u=8
   for p in ${v//+/ }; do  # a variant joins parts with "+", e.g. ln+c:utd=0.01171875
     [ "$p" = noeval ] && extra+=(--extra=--eval_every=1000000000)
@@ -53,11 +53,10 @@ for v in ${VARIANTS:-base noeval swi}; do
     [ "$p" = w15 ] && extra+=(--extra=--num_workers=15 --extra=--pin_cpus=-1)
     [[ "$p" =~ ^w([0-9]+)p([0-9]+)$ ]] && extra+=(--extra=--num_workers=${BASH_REMATCH[1]} --extra=--pin_cpus=${BASH_REMATCH[2]})
   done
-  JAX_COMPILATION_CACHE_DIR=$cache XLA_FLAGS=$xf PYTHONPATH=$pp env ${sched:+TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE=$sched} \
+  XLA_FLAGS=$xf PYTHONPATH=$pp env ${sched:+TF_CUDA_PLATFORM_GPU_DEVICE_SCHEDULE=$sched} \
     python3 bench/time_to_target.py --only fastsac_async \
     --seed "$seed" --max_seconds "${MAXS:-110}" --commit "${COMMIT:-unknown}" --metrics_dir "$OUT/metrics_$run" \
     --out "$OUT/ttt_$run.json" "${extra[@]}" 2>&1 | grep -v -i warning | tail -2 | sed "s/^/$run: /"
-  rm -rf "$cache"
   python3 bench/learner_runs.py --start 40 --end "${MAXS:-110}" --out "$OUT/rates_$run.json" \
     "${COMMIT:-unknown},$v,$u,$OUT/ttt_$run.json,$OUT/metrics_$run" | grep "^| ${COMMIT:-unknown}"
 done

@@ -42,8 +42,7 @@ PYSPY=${PYSPY:-$(command -v py-spy || { [ -x /tmp/site/bin/py-spy ] && echo /tmp
 spy=("$PYSPY"); command -v taskset > /dev/null && spy=(taskset -c "$PIN" "$PYSPY")
 read -ra extra <<< "${EXTRA:-}"
 
-cache=$(mktemp -d)
-JAX_COMPILATION_CACHE_DIR=$cache "$PY" bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" \
+"$PY" bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" \
   --max_seconds "$MAXS" --no_stop_at_target --commit "${COMMIT:-unknown}" --metrics_dir "$W/metrics" \
   --out "$W/ttt.json" "${extra[@]}" > "$W/ttt.log" 2>&1 &
 ttt=$!
@@ -91,7 +90,6 @@ record native "$DUR" "$RATE" --native --native
 t3=$SECONDS
 dumps $((MAXS - 5))
 wait "$ttt"; tail -3 "$W/ttt.log"
-rm -rf "$cache"
 
 for win in "pre 30 $T1" "python $T1 $t2" "native $t2 $t3" "post $((t3 + 1)) $MAXS"; do
   read -r name a b <<< "$win"

@@ -35,7 +35,9 @@ reward and episode length; with 64 episodes the falls bound allows one fall, wit
 
 Clocks: time to target is the ``eval/wall_s`` of the first evaluation reaching the target: seconds
 from the training process's start (imports, XLA compilation, worker start-up included) to the moment
-the evaluated weights existed. The runtime evaluates in a background thread; the MJX loop evaluates
+the evaluated weights existed. Each run compiles from an empty compilation cache of its own
+(``--compilation_cache=cold``, the default; a directory instead measures warm starts), recorded as
+``compilation_cache``. The runtime evaluates in a background thread; the MJX loop evaluates
 in between training calls, so for it the record also holds ``train_time_to_target_s`` (the same clock
 minus the time spent evaluating), and the report compares with both.
 
@@ -64,6 +66,7 @@ import socket
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from typing import Any
 
@@ -151,6 +154,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--extra", action="append", default=[], help="one more flag for the experiment script")
     ap.add_argument("--no_stop_at_target", action="store_true", help="train until the budget even after the goals")
     ap.add_argument("--runs_dir", default="/tmp/time_to_target_runs", help="where the runs' logdirs go")
+    ap.add_argument("--compilation_cache", default="cold", help="cold: each run compiles everything (an empty JAX "
+                    "compilation cache of its own, removed after it); a directory: the runs share that cache (a "
+                    "warm start once one run filled it)")
     ap.add_argument("--resume", action="store_true", help="continue each configuration's latest run of the seed "
                     "under --runs_dir (from its checkpoint, its clock going on) for another --max_seconds")
     ap.add_argument("--metrics_dir", default=None, help="copy each run's metrics.jsonl here (<config>_s<seed>_<date>)")
@@ -367,8 +373,10 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
         stamp = "_".join(os.path.basename(logdir).rsplit("_", 2)[1:])
     os.makedirs(logdir, exist_ok=True)
     cmd = command(name, cfg, seed, logdir, args) + (["--resume"] if args.resume else [])
+    cache = (tempfile.mkdtemp(prefix="xla_cache_") if args.compilation_cache == "cold"
+             else os.path.abspath(args.compilation_cache))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (REPO, os.environ.get("PYTHONPATH")) if p),
-           "PYTHONUNBUFFERED": "1"}
+           "PYTHONUNBUFFERED": "1", "JAX_COMPILATION_CACHE_DIR": cache}
     reader = MetricsReader(os.path.join(logdir, "metrics.jsonl"))
     rows: list[dict[str, Any]] = []
     print(f"[{name} seed {seed}] {' '.join(cmd)}", flush=True)
@@ -397,6 +405,8 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
                     break
         finally:
             _stop(proc)
+            if args.compilation_cache == "cold":
+                shutil.rmtree(cache, ignore_errors=True)
     rows += reader.new_rows()
     record = {"config": name, "kind": cfg["kind"], "sync": cfg["sync"], "seed": seed, "target": target,
               "walking_criterion": {**dataclasses.asdict(WALKING), **({"rough": True} if rough else {})},
@@ -414,6 +424,7 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
         os.makedirs(args.metrics_dir, exist_ok=True)
         record["metrics_copy"] = os.path.join(args.metrics_dir, f"{name}_s{seed}_{stamp}.jsonl")
         shutil.copyfile(reader.path, record["metrics_copy"])
+    record["compilation_cache"] = "cold" if args.compilation_cache == "cold" else cache
     record["startup"] = startup(open(os.path.join(logdir, "stdout.log"), errors="replace").read())
     summary_path = os.path.join(logdir, "summary.json")
     if os.path.exists(summary_path):

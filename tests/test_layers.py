@@ -50,7 +50,8 @@ LAYERS = [
     ("unilab_jax.training", 6.0), ("unilab_jax.training.threads", 6.0), ("unilab_jax.training.sources", 6.0),
     ("unilab_jax.training.evaluation", 6.0), ("unilab_jax.training.device_replay", 6.0),
     ("unilab_jax.training.sharding", 6.0), ("unilab_jax.training.profiling", 6.0),
-    ("unilab_jax.training.ring_snapshot", 6.0),
+    ("unilab_jax.training.ring_snapshot", 6.0), ("unilab_jax.training.run_config", 6.0),
+    ("unilab_jax.training.compile_cache", 6.0),
     ("unilab_jax.training.trainer", 6.1), ("unilab_jax.training.mjx", 6.1), ("unilab_jax.training.hgdagger", 6.1),
     # L7: the applications wing: saved runs < play, export, record < the experiments' flags < the family CLIs
     ("unilab_jax.apps", 7.0), ("unilab_jax.apps.saved_run", 7.0),

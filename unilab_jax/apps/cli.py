@@ -113,6 +113,9 @@ flags.DEFINE_string("profile_dir", "", "JAX learner: write a jax.profiler trace 
                     "--profile_updates updates from update --profile_start into this folder")
 flags.DEFINE_integer("profile_start", 300, "with --profile_dir: the update the trace starts at (past compile)")
 flags.DEFINE_integer("profile_updates", 30, "with --profile_dir: how many updates the trace holds")
+flags.DEFINE_string("compilation_cache", "auto", "jax learner: keep compiled programs in this folder so that a later "
+                    "run with the same shapes loads them instead of compiling; auto: ~/.cache/unilab_jax/xla when the "
+                    "learner runs on an accelerator, off on the CPU; off: never (JAX_COMPILATION_CACHE_DIR wins)")
 flags.DEFINE_multi_string("config", [], "algorithm override key=value (repeatable)")
 flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatable)")
 
@@ -120,7 +123,8 @@ flags.DEFINE_multi_string("task_config", [], "task override key=value (repeatabl
 # The flags every run reads, and those only off-policy runs read (--help lists each script's own).
 RUN_FLAGS = ("platform", "task", "total_steps", "num_workers", "envs_per_worker", "seed", "logdir", "resume",
              "eval_every", "eval_envs", "eval_process", "checkpoint_every", "video_every", "serial", "pin_cpus",
-             "devices", "wandb_project", "profile_dir", "profile_start", "profile_updates", "config", "task_config")
+             "devices", "wandb_project", "profile_dir", "profile_start", "profile_updates", "compilation_cache",
+             "config", "task_config")
 REPLAY_FLAGS = ("replay_dir", "replay_disk_gb", "replay_hot_fraction", "replay_chunk_rows", "keep_replay",
                 "replay_on_device", "precompile", "device_split", "utd_mode", "utd_window", "ray_address",
                 "ray_workers_per_host")
@@ -256,6 +260,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                           ("precompile", ("auto", "on", "off"))):
         if getattr(opts, name) not in choices:  # absl checks the flags; train()'s keywords are checked here
             raise FlagError(f"--{name}={getattr(opts, name)!r}: choose one of {choices}")
+    if not isinstance(opts.compilation_cache, str) or not opts.compilation_cache:
+        raise FlagError(f"--compilation_cache={opts.compilation_cache!r}: 'auto', 'off' or a directory")
     if not 0.0 <= opts.replay_hot_fraction <= 1.0:
         raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {opts.replay_hot_fraction}")
     _resolve_pin_cpus(opts)
@@ -325,7 +331,7 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                     ray_address=opts.ray_address,
                     ray_workers_per_host=opts.ray_workers_per_host, wandb_project=opts.wandb_project,
                     profile_dir=opts.profile_dir, profile_start=opts.profile_start,
-                    profile_updates=opts.profile_updates)
+                    profile_updates=opts.profile_updates, compilation_cache=opts.compilation_cache)
     return run, module, config, task_overrides
 
 

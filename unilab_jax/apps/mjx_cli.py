@@ -59,6 +59,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
             raise cli.FlagError(f"--{name} must be at least 1, got {value}")
     if FLAGS.eval_every < 0 or FLAGS.max_seconds < 0:
         raise cli.FlagError("--eval_every and --max_seconds must be >= 0")
+    if not FLAGS.compilation_cache:
+        raise cli.FlagError("--compilation_cache='': 'auto', 'off' or a directory")
     module = algos.get(algo)
     config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(FLAGS.config))
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}
@@ -74,7 +76,8 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
         raise cli.FlagError(f"--logdir={logdir!r} cannot be created: {e}") from e
     run = MjxRunConfig(algo=algo, task=task_name, num_envs=num_envs, total_steps=total, seed=FLAGS.seed,
                        logdir=logdir, eval_every=FLAGS.eval_every, eval_envs=FLAGS.eval_envs,
-                       max_seconds=FLAGS.max_seconds, iterations_per_call=iters)
+                       max_seconds=FLAGS.max_seconds, iterations_per_call=iters,
+                       compilation_cache=FLAGS.compilation_cache)
     return run, module, config, task_overrides
 
 

@@ -53,6 +53,7 @@ from unilab_jax import algos
 from unilab_jax.fields import REPLAY_FIELDS, TRAJECTORY_FIELDS
 from unilab_jax.metrics import WALKING, MetricLogger
 from unilab_jax.runtime.ring import StopRequested
+from unilab_jax.training import compile_cache
 from unilab_jax.training.threads import LearnerThread, stop_on_signals, wait_result
 
 # task name -> module with ``make(config, num_envs)`` (the walking and rough modules pick the task from the config's
@@ -77,6 +78,7 @@ class MjxRunConfig:
     eval_envs: int = 16
     max_seconds: float = 0.0  # stop (without a final evaluation) once this much wall time has passed; 0: no limit
     iterations_per_call: int = 1  # training iterations per jitted call (one logged row per call)
+    compilation_cache: str = "auto"  # RunConfig.compilation_cache (training/compile_cache.py)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -189,6 +191,7 @@ class MjxTrainer:
     def __init__(self, run: MjxRunConfig, algo_module: Any, algo_config: Any, task_overrides: dict[str, Any],
                  start_time: float | None = None, compiler_options: dict[str, Any] | None = None):
         self.t0 = time.time() if start_time is None else start_time
+        compile_cache.configure(run.compilation_cache, "jax")
         self.run, self.algo, self.config, self.task_overrides = run, algo_module, algo_config, dict(task_overrides)
         self.envs = make_env(run.task, run.num_envs, task_overrides, compiler_options)
         self.eval_env = make_env(run.task, run.eval_envs, task_overrides, compiler_options, evaluation=True)
