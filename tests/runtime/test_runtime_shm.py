@@ -35,6 +35,11 @@ def test_create_poisons_aligns_and_attaches():
         assert (seg["i"] == -1).all() and seg["j"] == -1
         assert (seg["u"] == 255).all() and seg["b"].all()
         assert all(off % 64 == 0 for off in seg.offsets.values())
+        # the padding between fields (it enters slot checksums) reads as zeros: every byte outside the fields
+        poisoned = np.zeros(len(seg.raw), bool)
+        for name, off in seg.offsets.items():
+            poisoned[off:off + seg[name].nbytes] = True
+        assert (~poisoned).sum() > 0 and not np.frombuffer(seg.raw, np.uint8)[~poisoned].any()
         for name, (shape, dtype) in LAYOUT.items():
             assert seg[name].shape == shape and seg[name].dtype == np.dtype(dtype)
         seg["f"][1, 2] = 7.0

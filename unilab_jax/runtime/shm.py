@@ -204,7 +204,9 @@ class SharedArrays:
                         raise
             handle = ShmHandle(name, tuple((n, s, d.str) for n, (s, d) in norm.items()))
             out = cls(shm, handle, owner=True)
-            out.raw[:] = 0  # padding between fields is zero (it enters slot checksums)
+            # A new segment reads as zeros (POSIX: a file extended by ftruncate), so the padding between fields,
+            # which enters slot checksums, is zero without a pass over it: the fields' poison is the one write here
+            # (a third less time for a replay ring of gigabytes than zeroing it first).
             for arr in out.arrays.values():
                 arr[...] = poison_value(arr.dtype)
             return out
