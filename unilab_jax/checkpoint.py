@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from unilab_jax import xp as shim
+from unilab_jax.runtime.durable import durable_file, fsync_dir, write_atomic
 from unilab_jax.runtime.shm import pid_alive
 
 FORMATS = ("orbax", "npz")
@@ -308,17 +309,6 @@ def _import_orbax() -> Any:
     return ocp
 
 
-def _fsync_path(path: str, directory: bool = False) -> None:
-    fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
-    try:
-        os.fsync(fd)
-    except OSError:
-        if not directory:  # some filesystems refuse fsync on folders; files must be durable
-            raise
-    finally:
-        os.close(fd)
-
-
 def _complete_steps(directory: str) -> list[int]:
     """Integer-named step folders: npz ones carry the marker (renamed in whole); others are orbax's,
     which orbax itself only renames from its temporary name once committed."""
@@ -368,16 +358,12 @@ def _save_npz(directory: str, step: int, saveable: Any, meta: dict[str, Any]) ->
         arrays[path], dtypes[path] = _encode(np.asarray(leaf))
     # re-saving a step replaces it, as orbax's force=True does
     with committed_folder(os.path.join(directory, str(step))) as tmp:
-        with open(os.path.join(tmp, NPZ_STATE), "wb") as f:
+        with durable_file(os.path.join(tmp, NPZ_STATE)) as f:
             np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
         for name, text in ((NPZ_META, meta_json),
                            (NPZ_MARKER, json.dumps({"format": "npz", "version": 1, "step": step, "dtypes": dtypes}))):
-            with open(os.path.join(tmp, name), "w") as f:
+            with durable_file(os.path.join(tmp, name), "w") as f:
                 f.write(text)
-                f.flush()
-                os.fsync(f.fileno())
         _write_digests(tmp)
 
 
@@ -393,11 +379,11 @@ def committed_folder(final: str) -> Iterator[str]:
     os.makedirs(tmp)
     try:
         yield tmp
-        _fsync_path(tmp, directory=True)
+        fsync_dir(tmp)
         if os.path.exists(final):
             _remove_folder(final)
         os.rename(tmp, final)
-        _fsync_path(parent, directory=True)
+        fsync_dir(parent)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -453,13 +439,7 @@ def _write_digests(path: str) -> None:
     files = {rel: {"bytes": os.path.getsize(os.path.join(path, rel)), "sha256": _sha256(os.path.join(path, rel))}
              for rel in _files(path)}
     doc = {"version": 1, "algorithm": "sha256", "files": files, "self": _self_digest(files)}
-    tmp = os.path.join(path, DIGESTS + ".tmp")
-    with open(tmp, "w") as f:
-        json.dump(doc, f, indent=1, sort_keys=True)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, os.path.join(path, DIGESTS))
-    _fsync_path(path, directory=True)
+    write_atomic(os.path.join(path, DIGESTS), lambda f: json.dump(doc, f, indent=1, sort_keys=True), binary=False)
 
 
 def _check_digests(path: str) -> tuple[str, str] | str | None:

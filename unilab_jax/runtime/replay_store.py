@@ -51,6 +51,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from unilab_jax.runtime.buffers import FieldLayout, ReplayBuffer, SlotCorruptError, row_checksums
+from unilab_jax.runtime.durable import write_atomic
 from unilab_jax.runtime.ring import fence
 
 __all__ = ["ReplayStore", "RingSpiller", "StoreCorruptError", "StoreFormatError", "StoreLockedError",
@@ -127,32 +128,6 @@ def _index_problem(raw: bytes) -> tuple[dict | None, str | None]:
     except (KeyError, TypeError, ValueError) as e:
         return None, f"a field is missing or malformed ({type(e).__name__}: {e})"
     return (doc, None) if ok else (None, "a field is missing or malformed")
-
-
-def _fsync_dir(path: str) -> None:
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    try:
-        os.fsync(fd)
-    except OSError:  # some filesystems refuse fsync on folders; the files themselves were fsynced
-        pass
-    finally:
-        os.close(fd)
-
-
-def _write_atomic(path: str, write: Callable[[Any], None], binary: bool) -> None:
-    """``write(f)`` into ``path + .tmp``, fsync, rename over ``path``, fsync the folder."""
-    tmp = path + TMP
-    try:
-        with open(tmp, "wb" if binary else "w") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    _fsync_dir(os.path.dirname(path))
 
 
 class ReplayStore:
@@ -381,8 +356,8 @@ class ReplayStore:
     def _commit(self) -> None:
         records = self._stage[: self._staged]
         chunk = _Chunk(self._next_id, self._committed, self._staged, zlib.crc32(records.view(np.uint8)))
-        _write_atomic(self._path(chunk.id), lambda f: np.lib.format.write_array(f, records, allow_pickle=False),
-                      binary=True)
+        write_atomic(self._path(chunk.id), lambda f: np.lib.format.write_array(f, records, allow_pickle=False),
+                     binary=True, suffix=TMP)
         self._chunks.append(chunk)
         size = os.path.getsize(self._path(chunk.id))
         self._sizes[chunk.id] = size
@@ -417,7 +392,7 @@ class ReplayStore:
                "info": self.info, "chunks": [list(c) for c in self._chunks]}
         doc = json.loads(json.dumps(doc))  # the digest of what a reader parses (tuples, non-string keys)
         doc["sha256"] = _index_digest(doc)
-        _write_atomic(os.path.join(self.directory, INDEX), lambda f: json.dump(doc, f), binary=False)
+        write_atomic(os.path.join(self.directory, INDEX), lambda f: json.dump(doc, f), binary=False, suffix=TMP)
 
     # ---- reading -------------------------------------------------------------------------------
     def sample_records(self, n: int, rng: np.random.Generator) -> np.ndarray:

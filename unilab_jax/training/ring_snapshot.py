@@ -36,6 +36,7 @@ import numpy as np
 
 from unilab_jax.checkpoint import committed_folder, remove_dead_temp_dirs
 from unilab_jax.runtime.buffers import ReplayBuffer
+from unilab_jax.runtime.durable import durable_file
 
 log = logging.getLogger(__name__)
 
@@ -93,14 +94,10 @@ def save(buffer: ReplayBuffer, directory: str, task: str, env_steps: int) -> int
     counts = buffer.counts()
     with committed_folder(directory) as tmp:
         for name, region in buffer.regions.items():
-            with open(os.path.join(tmp, f"{name}.npy"), "wb") as f:
+            with durable_file(os.path.join(tmp, f"{name}.npy")) as f:
                 np.save(f, region)  # a contiguous array goes to a file with one write, no copy
-                f.flush()
-                os.fsync(f.fileno())
-        with open(os.path.join(tmp, LAYOUT), "w") as f:
+        with durable_file(os.path.join(tmp, LAYOUT), "w") as f:
             json.dump({**layout(buffer, task), "counts": counts.tolist(), "env_steps": int(env_steps)}, f, indent=1)
-            f.flush()
-            os.fsync(f.fileno())
     return int(np.minimum(counts, buffer.capacity).sum())
 
 
