@@ -8,7 +8,8 @@ CPU, where programs compile in a second or two and a test suite would fill the f
 there; ``"off"`` leaves it off. ``JAX_COMPILATION_CACHE_DIR`` in the environment (which JAX reads itself) wins: the
 benchmarks give each run an empty one, so their times include the compiles.
 
-JAX keeps only programs that took at least ``jax_persistent_cache_min_compile_time_secs`` (1 s) to compile.
+JAX keeps only programs that took at least ``jax_persistent_cache_min_compile_time_secs`` (1 s) to compile. Nothing
+prunes the folder (JAX's eviction needs the ``filelock`` package, not a dependency here): deleting it frees its space.
 """
 
 from __future__ import annotations
