@@ -125,7 +125,9 @@ def test_rlpd_improves_on_its_first_evaluation(tmp_path, capsys):
     # (``python -m unilab_jax.play``'s main in this process: three interpreters' imports saved)
     play = [f"--logdir={logdir}"]
     capsys.readouterr()
-    assert play_main([*play, "--episodes=2", "--task_config=connect_timeout_s=1"]) == 2
+    # Each silent address costs one call's timeout (timeout_s, 2 s by default: 6 s of waiting for the three); at
+    # 0.4 s the first round over the three (1.2 s) already passes the 1 s connect timeout.
+    assert play_main([*play, "--episodes=2", "--task_config=connect_timeout_s=1", "--task_config=timeout_s=0.4"]) == 2
     assert "robots wanted, 0 free" in capsys.readouterr().err
     steps = sorted(int(n) for n in os.listdir(logdir / "checkpoints") if n.isdigit())
     assert steps[0] <= 400 and steps[-1] >= 900, steps
