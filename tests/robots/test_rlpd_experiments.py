@@ -32,15 +32,16 @@ def _script(name: str, *args: str, timeout: float) -> subprocess.CompletedProces
 
 def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     """The plain command: images (the front and wrist cameras' frames rendered by the sim: server) + proprioception, 20
-    demonstrations recorded with images, RLPD with the image encoder. 500 env steps (learning starts at 300:
-    ~100 gradient steps at the image recipe's utd 0.5, ~25 learner calls, each logging the prior rows and the
-    ensemble's spread) exercise what 2000 did, and 4 gradient steps per call, not the recipe's 16: on the CPU
+    demonstrations recorded with images, RLPD with the image encoder. 400 env steps (learning starts at 300:
+    ~50 gradient steps at the image recipe's utd 0.5, ~20 learner calls, each logging the prior rows and the
+    ensemble's spread) exercise what 2000 did, and 2 gradient steps per call, not the recipe's 16: on the CPU
     the image learner unrolls its steps, so the first call's compile grows with them (16: 47 s, 4: 14 s on the
-    2-core VM). The cameras draw the arm's collision geometry (``camera_geometry=collision``): its visual meshes cost
-    ~15 ms a frame in software GL, ~25 CPU-s over this run's ~1900 frames, and are rendered in
-    tests/robots/test_image_obs.py."""
+    2-core VM; later, the first call 7.3 s at 4 and 5.1 s at 2). The script at 500 steps and 4 per call: 26.2-27.7
+    CPU-s, at 400 and 2: 19.1-20.3 (three runs each, alternating). The cameras draw the arm's collision geometry
+    (``camera_geometry=collision``): its visual meshes cost ~15 ms a frame in software GL, ~25 CPU-s over the ~1900
+    frames of a 500-step run, and are rendered in tests/robots/test_image_obs.py."""
     logdir = tmp_path / "run"
-    out = _script("rlpd_franka_peg.py", "--speed=20", "--total_steps=500", "--config", "updates_per_call=4",
+    out = _script("rlpd_franka_peg.py", "--speed=20", "--total_steps=400", "--config", "updates_per_call=2",
                   "--task_config=camera_geometry=collision", f"--logdir={logdir}", timeout=500)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "demonstrations: 20 episodes (" in out.stdout
@@ -62,10 +63,10 @@ def test_rlpd_franka_peg_records_demos_and_trains(tmp_path):
     assert prior_rows and set(prior_rows) == {64.0}  # half of each batch of 128 from the demonstrations
     assert any("loss/q_std" in r for r in metrics)  # the ensemble's spread: RLPD's critic ran
     summary = json.load(open(logdir / "summary.json"))
-    assert summary["env_steps"] >= 500 and not summary["interrupted"]
+    assert summary["env_steps"] >= 400 and not summary["interrupted"]
     assert 0.0 <= summary["eval/success_rate"] <= 1.0 and np.isfinite(summary["eval/return"])
-    # robot time at speed 1: 500 steps at 10 Hz plus the demonstrations' own steps
-    assert summary["robot_s"] == pytest.approx(50.0 + len(rows["reward"]) / 10.0, abs=0.2)
+    # robot time at speed 1: 400 steps at 10 Hz plus the demonstrations' own steps
+    assert summary["robot_s"] == pytest.approx(40.0 + len(rows["reward"]) / 10.0, abs=0.2)
     assert not (logdir / "demos.partial").exists()
     # these demonstrations hold no robot-identity one-hot (the robot experiments leave it out): a run that asks
     # for the one-hot on two robots refuses them before it trains
