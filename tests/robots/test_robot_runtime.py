@@ -37,14 +37,16 @@ def _experiment(*args: str, timeout: float) -> subprocess.CompletedProcess:
 def test_sac_franka_pick_trains_on_two_sim_robots(tmp_path):
     logdir = tmp_path / "run"
     t = time.perf_counter()
+    # 1,500 env steps (3,000 before; learning starts at 500): 62 learner calls logging losses and 68 rows with the
+    # episodes' success rate (156 and 162 at 3,000); the test 17.1 -> 10.9 CPU-s, 16.6 -> 10.9 s (two runs each).
     out = _experiment("--robots=sim:franka_emika_panda,sim:universal_robots_ur5e", "--speed=20",
-                      "--total_steps=3000", f"--logdir={logdir}", timeout=240)
+                      "--total_steps=1500", f"--logdir={logdir}", timeout=240)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "franka_pick_place (franka" in out.stdout and "ur5e_pick_place (ur5e" in out.stdout
     rows = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
-    assert rows and rows[-1]["step"] >= 3000 and any("loss/critic_loss" in r or "loss/actor_loss" in r for r in rows)
+    assert rows and rows[-1]["step"] >= 1500 and any("loss/critic_loss" in r or "loss/actor_loss" in r for r in rows)
     summary = json.load(open(logdir / "summary.json"))
-    assert summary["env_steps"] >= 3000 and not summary["interrupted"] and np.isfinite(summary["eval/return"])
+    assert summary["env_steps"] >= 1500 and not summary["interrupted"] and np.isfinite(summary["eval/return"])
     assert summary["eval/episodes"] == 2 and 0.0 <= summary["eval/success_rate"] <= 1.0
     # Learning shows while the workers hold the robots: their episodes' success rate is logged.
     success = [r["episode/success_rate"] for r in rows if "episode/success_rate" in r]
