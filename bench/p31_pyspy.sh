@@ -35,9 +35,8 @@ if [ "${SETUP:-1}" = 1 ]; then
   head -3 "$W/setup.txt"
 fi
 PY=${PYTHON:-python3}
-PYSPY=${PYSPY:-$(command -v py-spy || { [ -x /tmp/site/bin/py-spy ] && echo /tmp/site/bin/py-spy; } \
-  || echo "$(dirname "$("$PY" -c 'import sys; print(sys.executable)')")/py-spy")}
-[ -x "$PYSPY" ] || { echo "p31_pyspy: no py-spy binary (bench/device_bundle.sh bundles its wheel; or set PYSPY)"; exit 2; }
+NAME=p31_pyspy; source bench/pyspy_common.sh
+PYSPY=$(pyspy_binary) || exit 2
 "$PYSPY" --version
 spy=("$PYSPY"); command -v taskset > /dev/null && spy=(taskset -c "$PIN" "$PYSPY")
 read -ra extra <<< "${EXTRA:-}"
@@ -46,15 +45,7 @@ read -ra extra <<< "${EXTRA:-}"
   --max_seconds "$MAXS" --no_stop_at_target --commit "${COMMIT:-unknown}" --metrics_dir "$W/metrics" \
   --out "$W/ttt.json" "${extra[@]}" > "$W/ttt.log" 2>&1 &
 ttt=$!
-pid=
-for _ in $(seq 300); do  # the learner process: bench/time_to_target.py's child running the experiment script
-  for p in /proc/[0-9]*; do
-    [ "$(cut -d' ' -f4 "$p/stat" 2>/dev/null)" = "$ttt" ] && grep -q fastsac_go1 "$p/cmdline" 2>/dev/null \
-      && pid=${p#/proc/} && break
-  done
-  [ -n "$pid" ] && break; sleep 0.1
-done
-[ -n "$pid" ] || { echo "p31_pyspy: the learner process did not start"; cat "$W/ttt.log"; exit 1; }
+pid=$(learner_pid "$ttt" 0.1) || { cat "$W/ttt.log"; exit 1; }
 SECONDS=0
 echo "learner process $pid: $(tr '\0' ' ' < "/proc/$pid/cmdline")" | tee "$W/learner.txt"
 

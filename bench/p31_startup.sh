@@ -20,24 +20,15 @@ if [ "${SETUP:-1}" = 1 ]; then
   head -3 "$W/setup.txt"
 fi
 PY=${PYTHON:-python3}
-PYSPY=${PYSPY:-$(command -v py-spy || { [ -x /tmp/site/bin/py-spy ] && echo /tmp/site/bin/py-spy; } \
-  || echo "$(dirname "$("$PY" -c 'import sys; print(sys.executable)')")/py-spy")}
-[ -x "$PYSPY" ] || { echo "p31_startup: no py-spy binary (bench/device_bundle.sh bundles its wheel; or set PYSPY)"; exit 2; }
+NAME=p31_startup; source bench/pyspy_common.sh
+PYSPY=$(pyspy_binary) || exit 2
 read -ra extra <<< "${EXTRA:-}"
 
 JAX_LOG_COMPILES=1 "$PY" bench/time_to_target.py --only fastsac_async --seed "${SEED:-0}" --max_seconds "$MAXS" \
   --no_stop_at_target --commit "${COMMIT:-unknown}" --runs_dir "$W/runs" --out "$W/ttt.json" "${extra[@]}" \
   > "$W/ttt.log" 2>&1 &
 ttt=$!
-pid=
-for _ in $(seq 600); do  # the learner process: bench/time_to_target.py's child running the experiment script
-  for p in /proc/[0-9]*; do
-    [ "$(cut -d' ' -f4 "$p/stat" 2>/dev/null)" = "$ttt" ] && grep -q fastsac_go1 "$p/cmdline" 2>/dev/null \
-      && pid=${p#/proc/} && break
-  done
-  [ -n "$pid" ] && break; sleep 0.02
-done
-[ -n "$pid" ] || { echo "p31_startup: the learner process did not start"; cat "$W/ttt.log"; exit 1; }
+pid=$(learner_pid "$ttt" 0.02) || { cat "$W/ttt.log"; exit 1; }
 echo "learner process $pid, found $(ps -o etimes= -p "$pid" | tr -d ' ') s after its start"
 for win in "init $T1" "compile $DUR"; do
   read -r name secs <<< "$win"
