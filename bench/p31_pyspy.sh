@@ -30,12 +30,9 @@ OUT=${OUT:-/tmp/p31_pyspy}; mkdir -p "$OUT"; W=$(mktemp -d)
 MAXS=${MAXS:-110}; T1=${T1:-50}; DUR_PY=${DUR_PY:-15}; DUR=${DUR:-20}; RATE_PY=${RATE_PY:-200}; RATE=${RATE:-20}
 DUMP_EVERY=${DUMP_EVERY:-5}; PIN=${PIN:-$(($(nproc) - 1))}
 [ $((T1 + DUR_PY + DUR + 5)) -le "$MAXS" ] || { echo "p31_pyspy: T1 + DUR_PY + DUR must end 5 s before MAXS"; exit 2; }
-if [ "${SETUP:-1}" = 1 ]; then
-  ROBOTS="unitree_go1" source bench/device_setup.sh > "$W/setup.txt" 2>&1 || { cat "$W/setup.txt"; exit 1; }
-  head -3 "$W/setup.txt"
-fi
-PY=${PYTHON:-python3}
 NAME=p31_pyspy; source bench/pyspy_common.sh
+go1_setup "$W"
+PY=${PYTHON:-python3}
 PYSPY=$(pyspy_binary) || exit 2
 "$PYSPY" --version
 spy=("$PYSPY"); command -v taskset > /dev/null && spy=(taskset -c "$PIN" "$PYSPY")

@@ -15,12 +15,9 @@ set -u
 OUT=${OUT:-/tmp/p31_startup}; mkdir -p "$OUT"; W=$(mktemp -d)
 MAXS=${MAXS:-35}; T1=${T1:-11}; DUR=${DUR:-15}; RATE=${RATE:-100}
 [ $((T1 + DUR + 3)) -le "$MAXS" ] || { echo "p31_startup: T1 + DUR must end 3 s before MAXS"; exit 2; }
-if [ "${SETUP:-1}" = 1 ]; then
-  ROBOTS="unitree_go1" source bench/device_setup.sh > "$W/setup.txt" 2>&1 || { cat "$W/setup.txt"; exit 1; }
-  head -3 "$W/setup.txt"
-fi
-PY=${PYTHON:-python3}
 NAME=p31_startup; source bench/pyspy_common.sh
+go1_setup "$W"
+PY=${PYTHON:-python3}
 PYSPY=$(pyspy_binary) || exit 2
 read -ra extra <<< "${EXTRA:-}"
 
