@@ -118,14 +118,19 @@ def test_a_step_without_digests_restores_unverified(tmp_path, caplog):
     ck.close()
 
 
+# Killed once the asynchronous save of step 2 has made its temporary folder (killed at once, a loaded machine's save
+# thread had not yet made it: a fresh-clone CI run found only "1").
 _KILLED_MID_SAVE = """
-import os, sys
+import os, sys, time
 import numpy as np
 from unilab_jax.checkpoint import Checkpointer
 ck = Checkpointer(sys.argv[1])
 ck.save(1, {"w": np.ones((8, 8), np.float32)}, {"step": 1})
 ck.wait()
 ck.save(2, {"w": np.random.default_rng(0).standard_normal((2048, 2048)).astype(np.float32)}, {"step": 2})
+deadline = time.monotonic() + 60
+while not os.path.exists(os.path.join(sys.argv[1], "2.orbax-checkpoint-tmp")) and time.monotonic() < deadline:
+    time.sleep(0.0005)
 os.kill(os.getpid(), 9)
 """
 
