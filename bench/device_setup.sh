@@ -1,8 +1,9 @@
 # Sourced at the start of each command on the GPU machine: installs the offline bundle made by
 # ../shared/device/prepare.sh (MuJoCo wheels + robots) and puts the checkout on the path.
-# With the compressed bundle of bench/device_bundle.sh (.devr carried): wheels copied, the robots in $ROBOTS unpacked.
+# With the compressed bundle of bench/device_bundle.sh (.devr carried): wheels copied, the robots in $ROBOTS unpacked;
+# a later call on the same warm machine may carry robots alone (.device/whl and unpacked robots stay there).
 if [ -d .devr ]; then
-  mkdir -p .device/robots .device/whl && cp .devr/whl/*.whl .device/whl/
+  mkdir -p .device/robots .device/whl; [ -d .devr/whl ] && cp .devr/whl/*.whl .device/whl/
   for r in ${ROBOTS:-unitree_go1}; do tar xJf ".devr/$r.tar.xz" -C .device/robots || exit 1; done
 fi
 # With the GL libraries carried (.gl: Debian's libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2 .debs, see
