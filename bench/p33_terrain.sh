@@ -21,8 +21,10 @@
 # resumed time includes (the criterion's evaluation uses fixed upper-half levels, whatever the curriculum).
 set -u
 OUT=${OUT:-/tmp/p33_terrain}; mkdir -p "$OUT/metrics"
-ROBOTS="${ROBOTS:-unitree_go1 unitree_go2 unitree_g1}" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
-head -3 "$OUT/setup.txt"
+if [ "${SETUP:-1}" = 1 ]; then  # SETUP=0: set up already (runs side by side, one CUDA_VISIBLE_DEVICES and taskset each)
+  ROBOTS="${ROBOTS:-unitree_go1 unitree_go2 unitree_g1}" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
+  head -3 "$OUT/setup.txt"
+fi
 RUNS=${RUNS_DIR:-/tmp/time_to_target_runs}
 extra=(); for x in ${EXTRA:-}; do extra+=("--extra=$x"); done  # EXTRA: flags for the experiment, space-separated
 python3 bench/time_to_target.py --only "$CONFIG" --seed $SEEDS --max_seconds "${MAXS:-480}" --commit "${COMMIT:-unknown}" \
