@@ -7,7 +7,8 @@ so a window whose kept row ended no episode still reports them.
 
 ``--wall_bin S`` (the locomotion runs, whose trainers log a row per learner call: ~16 MB gzipped in 10 minutes)
 keeps every scalar instead: the training rows of each S seconds of ``time/wall_s`` become one row of their means
-(``step`` and ``time/wall_s`` those of the bin's last row), evaluation rows as written; the terrain-level curves
+(``step`` and ``time/wall_s`` those of the bin's last row, ``compact/rows`` how many rows it stands for: one per
+learner call, what ``bench/learner_runs.py`` counts), evaluation rows as written; the terrain-level curves
 of ``bench/terrain_curves.py`` (20 s windows) move by < 0.03 at S = 0.5. The source may be gzipped.
 """
 
@@ -50,7 +51,8 @@ def bin_by_wall(src: str, dst: str, seconds: float) -> int:
         if group:
             keys = dict.fromkeys(k for r in group for k in r)
             mean = {k: sum(r[k] for r in group if k in r) / sum(1 for r in group if k in r) for k in keys}
-            out.append({**mean, "step": group[-1]["step"], "time/wall_s": group[-1]["time/wall_s"]})
+            out.append({**mean, "step": group[-1]["step"], "time/wall_s": group[-1]["time/wall_s"],
+                        "compact/rows": len(group)})
             group.clear()
 
     current = None

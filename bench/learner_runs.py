@@ -7,7 +7,10 @@ records and the runs' metrics (``--metrics_dir``).
 
 Each RUN is ``commit,variant,U,TTT_JSON,METRICS_DIR`` (U: gradient steps per learner call). Rates are medians or
 counts over the window [``--start``, ``--end``] seconds of each run's ``time/wall_s`` (the same window for every
-run, so that runs of different lengths compare), and over the whole run from ``--start`` on.
+run, so that runs of different lengths compare), and over the whole run from ``--start`` on. Calls are counted from
+the rows (one per call; the half-second bins of ``bench/compact_metrics.py --wall_bin`` say how many calls each
+holds); bins written before they did give the trainer's logged ``perf/learner_updates_per_s`` instead
+(``calls_source``: ``rows`` or ``logged``).
 """
 
 from __future__ import annotations
@@ -23,6 +26,10 @@ sys.path.insert(0, HERE)
 from machine import cpu_model  # noqa: E402
 
 
+# Rows closer than this are one per learner call (60-100 calls/s); compacted bins are 0.5 s apart.
+BINNED_GAP_S = 0.25
+
+
 def _median(values: list[float]) -> float | None:
     values = sorted(v for v in values if v is not None)
     return values[len(values) // 2] if values else None
@@ -34,8 +41,16 @@ def rates(rows: list[dict], start: float, end: float, steps_per_call: int) -> di
     if len(calls) < 2:
         return {"calls": len(calls)}
     span = calls[-1]["time/wall_s"] - calls[0]["time/wall_s"]
-    per_s = (len(calls) - 1) / span
-    return {"calls": len(calls), "span_s": round(span, 1), "calls_per_s": round(per_s, 2),
+    gaps = sorted(b["time/wall_s"] - a["time/wall_s"] for a, b in zip(calls, calls[1:]))
+    if "compact/rows" in calls[0] or gaps[len(gaps) // 2] < BINNED_GAP_S:
+        # a row per call, or bench/compact_metrics.py's bins with the count of calls each stands for
+        n = sum(int(r.get("compact/rows", 1)) for r in calls)
+        per_s, source = (n - calls[0].get("compact/rows", 1)) / span, "rows"
+    else:  # bins written before they held their row count: the trainer's own rate, as logged
+        n, per_s, source = None, _median([r.get("perf/learner_updates_per_s") for r in calls]), "logged"
+        if per_s is None:
+            return {"calls": None, "calls_source": "binned rows without a count or a logged rate"}
+    return {"calls": n, "calls_source": source, "span_s": round(span, 1), "calls_per_s": round(per_s, 2),
             "grad_steps_per_s": round(per_s * steps_per_call, 1),
             "dispatch_ms": round(1e3 * _median([r["perf/update_s"] for r in calls]), 2),
             "fetch_ms": (round(1e3 * f, 2) if (f := _median([r.get("perf/fetch_s") for r in calls])) is not None

@@ -39,7 +39,7 @@ def test_wall_bins_average_every_scalar_and_keep_evaluations(tmp_path):
     src.write_text("".join(json.dumps(r) + "\n" for r in rows))
     assert bin_by_wall(str(src), str(dst), 0.5) == 4
     out = [json.loads(line) for line in gzip.open(dst, "rt")]
-    assert out[0] == {"step": 20, "time/wall_s": 0.4, "a": 2.0, "b": 2.0}
+    assert out[0] == {"step": 20, "time/wall_s": 0.4, "a": 2.0, "b": 2.0, "compact/rows": 2}
     assert out[1] == {"step": 20, "eval/return": 5.0}
-    assert out[2] == {"step": 30, "time/wall_s": 0.45, "a": 5.0}
-    assert out[3] == {"step": 50, "time/wall_s": 0.9, "a": 8.0}
+    assert out[2] == {"step": 30, "time/wall_s": 0.45, "a": 5.0, "compact/rows": 1}
+    assert out[3] == {"step": 50, "time/wall_s": 0.9, "a": 8.0, "compact/rows": 2}

@@ -53,3 +53,35 @@ def test_hardware_plot_counts_a_run_that_did_not_walk_at_its_budget(tmp_path):
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_calls_from_half_second_bins_and_from_the_logged_rate_of_older_bins(tmp_path):
+    sys.path.insert(0, os.path.join(ROOT, "bench"))
+    import gzip
+
+    from compact_metrics import bin_by_wall
+
+    metrics = tmp_path / "metrics"
+    metrics.mkdir()
+    # 20 calls/s from 30 s to 120 s; the trainer logs its own rate as 19 (a rate it smooths: not the row count)
+    rows = [{"step": i, "time/wall_s": 30 + 0.05 * i, "perf/update_s": 0.01, "perf/learner_updates_per_s": 19.0}
+            for i in range(1801)]
+    raw = tmp_path / "raw.jsonl"
+    raw.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    bin_by_wall(str(raw), str(tmp_path / "binned.jsonl.gz"), 0.5)
+    binned = [json.loads(line) for line in gzip.open(tmp_path / "binned.jsonl.gz", "rt")]
+    legacy = [{k: v for k, v in r.items() if k != "compact/rows"} for r in binned]
+    ttt = tmp_path / "ttt.json"
+    records = []
+    for name, data in (("binned", binned), ("legacy", legacy)):
+        (metrics / f"{name}.jsonl").write_text("".join(json.dumps(r) + "\n" for r in data))
+        records.append({"config": name, "seed": 0, "max_seconds": 120.0, "logdir": f"/tmp/runs/{name}",
+                        "walking_reached": False})
+    ttt.write_text(json.dumps({"records": records}))
+    out = tmp_path / "runs.json"
+    res = subprocess.run([sys.executable, SCRIPT, "--out", str(out), f"abc,base,8,{ttt},{metrics}"],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    binned_rec, legacy_rec = (r["window"] for r in json.loads(out.read_text())["records"])
+    assert binned_rec["calls_source"] == "rows" and abs(binned_rec["calls_per_s"] - 20.0) < 0.3
+    assert legacy_rec["calls_source"] == "logged" and legacy_rec["calls_per_s"] == 19.0
