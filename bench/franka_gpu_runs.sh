@@ -46,7 +46,7 @@ job() {
     rlpd_peg_images_rt) a="experiments/rlpd_franka_peg.py ${F/--speed=${SPEED:-10}/--speed=1} $P $I --config actor_every=2 --utd_mode=free";;
     rlpd_pick_images_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I --config actor_every=20";;
   esac
-  local d=runs/$name
+  local d=${RUNS:-runs}/$name
   timeout ${JOB_TIMEOUT:-540} python3 $a --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log
   python3 bench/compact_metrics.py $d/metrics.jsonl $OUT/$name.jsonl.gz >> $OUT/$name.log 2>&1
   cp $d/summary.json $OUT/${name}_summary.json 2>/dev/null
@@ -71,7 +71,18 @@ if [ "${DEADLINE:-560}" -lt $(( ${JOB_TIMEOUT:-540} + 100 )) ]; then
 fi
 ( sleep "${DEADLINE:-560}"; pkill -TERM -f "unilab_jax.play" ; pkill -TERM -f "experiments/"; sleep 15
   pkill -KILL -f "unilab_jax.play"; pkill -KILL -f "experiments/" ) & watchdog=$!
-for j in "$@"; do job $j & done
+# GPUS="0 1 2 3": job k runs on GPU GPUS[k mod n] (CUDA_VISIBLE_DEVICES) and, with CORES=C, on cores [kC, (k+1)C) (the
+# 4-GPU kind: learner-bound image runs side by side, one GPU each); RUNS: where the runs' logdirs go (default runs/;
+# /tmp/... keeps them for a --resume in the next call on the same warm machine).
+read -ra gpus <<< "${GPUS:-}"; k=0
+for j in "$@"; do
+  (
+    if [ "${#gpus[@]}" -gt 0 ]; then export CUDA_VISIBLE_DEVICES=${gpus[$((k % ${#gpus[@]}))]}; fi
+    if [ -n "${CORES:-}" ]; then taskset -pc "$((k * CORES))-$(((k + 1) * CORES - 1))" $BASHPID > /dev/null; fi
+    job "$j"
+  ) &
+  k=$((k + 1))
+done
 while sleep 30; do n=$(jobs -pr | grep -vc "^$watchdog$"); [ "$n" = 0 ] && break; for j in "$@"; do tail -c 200 $OUT/$j.log | tr '\n' ' ' | tail -c 110; echo; done; done
 wait $(jobs -p | grep -v "^$watchdog$"); kill $watchdog 2>/dev/null
 # The evaluations as robot_learning.json records, and everything in one archive (at most 8 files come back from $OUT).
