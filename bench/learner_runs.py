@@ -25,7 +25,6 @@ sys.path.insert(0, HERE)
 
 from machine import cpu_model  # noqa: E402
 
-
 # Rows closer than this are one per learner call (60-100 calls/s); compacted bins are 0.5 s apart.
 BINNED_GAP_S = 0.25
 

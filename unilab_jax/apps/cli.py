@@ -26,6 +26,7 @@ from absl import app, flags
 from absl import logging as absl_logging
 
 from unilab_jax import sizing
+from unilab_jax.training import compile_cache
 
 # The learner's numpy work is small (statistics, evaluation); OpenBLAS threads spinning on it would
 # steal cores from the rollout workers. Set before numpy is first imported (nothing above imports it);
@@ -260,8 +261,10 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
                           ("precompile", ("auto", "on", "off"))):
         if getattr(opts, name) not in choices:  # absl checks the flags; train()'s keywords are checked here
             raise FlagError(f"--{name}={getattr(opts, name)!r}: choose one of {choices}")
-    if not isinstance(opts.compilation_cache, str) or not opts.compilation_cache:
-        raise FlagError(f"--compilation_cache={opts.compilation_cache!r}: 'auto', 'off' or a directory")
+    try:
+        compile_cache.check(opts.compilation_cache, "--compilation_cache")
+    except ValueError as e:
+        raise FlagError(str(e)) from None
     if not 0.0 <= opts.replay_hot_fraction <= 1.0:
         raise FlagError(f"--replay_hot_fraction must be in [0, 1], got {opts.replay_hot_fraction}")
     _resolve_pin_cpus(opts)

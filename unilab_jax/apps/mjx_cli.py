@@ -17,6 +17,7 @@ from typing import Any
 from absl import flags
 
 from unilab_jax.apps import cli
+from unilab_jax.training import compile_cache
 
 FLAGS = flags.FLAGS
 flags.DEFINE_integer("num_envs", None, "MJX environments stepped together on the accelerator (default: the "
@@ -59,8 +60,10 @@ def build_run(algo: str, task: str, recipe: Mapping[str, Any], task_recipe: Mapp
             raise cli.FlagError(f"--{name} must be at least 1, got {value}")
     if FLAGS.eval_every < 0 or FLAGS.max_seconds < 0:
         raise cli.FlagError("--eval_every and --max_seconds must be >= 0")
-    if not FLAGS.compilation_cache:
-        raise cli.FlagError("--compilation_cache='': 'auto', 'off' or a directory")
+    try:
+        compile_cache.check(FLAGS.compilation_cache, "--compilation_cache")
+    except ValueError as e:
+        raise cli.FlagError(str(e)) from None
     module = algos.get(algo)
     config = apply_overrides(apply_overrides(module.Config(), dict(recipe)), parse_overrides(FLAGS.config))
     task_overrides = {**dict(task_recipe if task_name == task else {}), **parse_overrides(FLAGS.task_config)}

@@ -26,6 +26,13 @@ def default_dir() -> str:
     return os.path.join(base, "unilab_jax", "xla")
 
 
+def check(setting: object, name: str = "compilation_cache") -> None:
+    """Raises ``ValueError`` naming ``name`` unless ``setting`` is a valid value: "auto", "off" or a directory (a
+    non-empty string)."""
+    if not isinstance(setting, str) or not setting:
+        raise ValueError(f"{name}={setting!r}: 'auto', 'off' or a directory")
+
+
 def configure(setting: str, platform: str) -> str:
     """Applies ``setting`` ("auto", "off" or a directory) for a ``platform`` ("jax" or "mlx") learner; returns the
     directory programs are cached in ("" for none). Programs compiled before the call are not cached; later ones are,

@@ -7,6 +7,7 @@ import dataclasses
 
 import tasks
 from unilab_jax import algos
+from unilab_jax.training import compile_cache
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,5 +96,4 @@ class RunConfig:
                               ("precompile", ("auto", "on", "off")), ("device_split", ("batch", "critics"))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"RunConfig: {name} must be one of {choices}, got {getattr(self, name)!r}")
-        if not self.compilation_cache:
-            raise ValueError("RunConfig: compilation_cache must be 'auto', 'off' or a directory, got ''")
+        compile_cache.check(self.compilation_cache, "RunConfig: compilation_cache")
