@@ -16,6 +16,13 @@ deterministic and tested by hand.
   is the path's length, not its reach: with commands resampled every ~5 s and yaw rates up to 1.2 rad/s (the
   Go1 task's), a robot making 80% of the commanded displacement was demoted after 54% of its episodes and
   promoted after 46% (a drift down; docs/TERRAIN.md), so the curriculum held every imperfect walker on level 0.
+* ``advance_walked_path`` (the ``path`` measure, ``RoughConfig.curriculum_distance``): the distance a robot made
+  along its commanded direction and the commanded path's length, for tasks whose command holds one yaw rate for a
+  whole episode (the Go2 and G1 walking tasks: ``U(-0.8, 0.8)`` rad/s): their commanded paths are circles, whose
+  reach after 20 s exceeds half a cell (4 m) for 23% of the commands (a perfect tracker), so under the displacement
+  rule a walker sinks to level 0 (two Go2 runs: no robot ever promoted); their path length exceeds it for 90%.
+  The distance is the base's planar velocity projected on the commanded direction, integrated: signed, so a robot
+  that rocks in place makes none and one that backs away against its command makes less than none.
 * ``widen_commands``: the command curriculum: when the tracking reward of the episodes that ended reached
   ``threshold`` of its maximum, every command range grows by ``step`` (per axis) up to its final range.
 """
@@ -56,12 +63,32 @@ def advance_commanded_path(displacement, heading, command, dt: float):
     return displacement + dt * step, heading + dt * command[:, 2]
 
 
+def per_episode(total, steps, episode_length: int):
+    """[n] ``total [n]``, accumulated over ``steps [n]`` control steps, scaled to the full ``episode_length`` (a robot
+    that fell early is measured against a whole episode); 0 for an empty episode."""
+    xp = shim.namespace(total, steps)
+    return total * episode_length / xp.maximum(xp.astype(steps, total.dtype), xp.ones_like(total))
+
+
 def asked_distance(displacement, steps, episode_length: int):
     """[n] the distance the commands asked for: the reach of the commanded path after ``steps`` (``displacement
     [n, 2]`` from ``advance_commanded_path``) scaled to the full ``episode_length`` (0 for an empty episode)."""
     xp = shim.namespace(displacement, steps)
-    reach = xp.sqrt(xp.sum(displacement * displacement, axis=1))
-    return reach * episode_length / xp.maximum(xp.astype(steps, reach.dtype), xp.ones_like(reach))
+    return per_episode(xp.sqrt(xp.sum(displacement * displacement, axis=1)), steps, episode_length)
+
+
+def advance_walked_path(walked, asked, velocity, yaw, command, dt: float):
+    """One control step of the ``path`` measure: ``walked [n]`` plus the base's world-frame planar ``velocity
+    [n, 2]`` projected on the command's direction (the body-frame ``command [n, 3]``'s (vx, vy) turned by the base
+    ``yaw [n]``) times ``dt``, and ``asked [n]`` plus the commanded planar speed times ``dt`` (the commanded path's
+    length). A zero planar command adds nothing to either. Returns (walked, asked)."""
+    xp = shim.namespace(walked, velocity, command)
+    vx, vy = command[:, 0], command[:, 1]
+    speed = xp.sqrt(vx * vx + vy * vy)
+    c, s = xp.cos(yaw), xp.sin(yaw)
+    along = (velocity[:, 0] * (c * vx - s * vy) + velocity[:, 1] * (s * vx + c * vy)) / xp.maximum(
+        speed, xp.full_like(speed, 1e-9))
+    return walked + dt * along, asked + dt * speed
 
 
 def widen_commands(current, final, step, tracking, threshold: float = 0.8):

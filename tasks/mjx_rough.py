@@ -10,9 +10,10 @@ written on the array-API shim):
 * Model: the CPU task's (the heightfield geom in place of the floor plane). MJX collides heightfields with spheres
   (``hfield_sphere``: the prisms of a sub-grid around the sphere; up to 4 contacts per foot), capsules and boxes;
   every foot here is a sphere (Go1, Go2: one per foot; G1: four per sole), and nothing else touches the ground.
-* State (``extra``, besides the action queue of ``dr_action_delay``): each env's cell (``level``, ``col``) and the
+* State (``extra``, besides the action queue of ``dr_action_delay``): each env's cell (``level``, ``col``), the
   episode's commanded path (``commanded``: its displacement, ``commanded_heading``: its heading;
-  ``curriculum.advance_commanded_path``).
+  ``curriculum.advance_commanded_path``) and its path measure (``walked``, ``asked_path``;
+  ``curriculum.advance_walked_path``).
 * Reset: new episodes at their cell's origin plus the flat task's jitter, the base at the standing height above the
   highest ground within ``spawn_radius`` of any foot (``terrain.highest_ground``), as ``TerrainState.place``.
 * Step: heights above the ground where the CPU task reads them (Go1: foot heights; Go2 / G1: base and foot heights),
@@ -86,7 +87,7 @@ class RoughMjx:
                      if rc.init_level_weights else jax.random.randint(key, (n,), 0, rc.max_init_level + 1, jnp.int32))
             levels, cols = curriculum.initial_cells(n, C, draws)
         return {**extra, "level": levels, "col": cols, "commanded": jnp.zeros((n, 2)),
-                "commanded_heading": jnp.zeros((n,))}
+                "commanded_heading": jnp.zeros((n,)), "walked": jnp.zeros((n,)), "asked_path": jnp.zeros((n,))}
 
     def place(self, qpos: jax.Array, extra: dict) -> jax.Array:
         qpos = qpos.at[:, :2].add(self.origins[extra["level"], extra["col"], :2])
@@ -116,19 +117,26 @@ class RoughMjx:
         ``ended`` envs that did not diverge, as ``TerrainState.episode_end``; the commanded paths restart."""
         state, out = super().after_transition(before, state, out, ended, key)
         c, e = self.rough_config, state.extra
-        path, heading = curriculum.advance_commanded_path(e["commanded"], e["commanded_heading"],
-                                                          before.info["command"], self.ctrl_dt)  # the step's command
+        command = before.info["command"]  # the step's command
+        path, heading = curriculum.advance_commanded_path(e["commanded"], e["commanded_heading"], command, self.ctrl_dt)
+        qpos = state.data.qpos
+        walked, asked_path = curriculum.advance_walked_path(e["walked"], e["asked_path"], state.data.qvel[:, :2],
+                                                            terrain.yaw_from_quat(qpos[:, 3:7]), command, self.ctrl_dt)
         levels = e["level"]
         metrics = {"terrain_level": levels.astype(jnp.float32),
                    **{f"terrain_level_{k}": (levels == k).astype(jnp.float32) for k in range(self.num_levels)}}
         if not self.frozen and c.terrain_curriculum:
-            dist = jnp.linalg.norm(state.data.qpos[:, :2] - self.origins[levels, e["col"], :2], axis=1)
-            asked = curriculum.asked_distance(path, state.steps, self.episode_length)
+            if c.curriculum_distance == "path":
+                dist, asked = walked, curriculum.per_episode(asked_path, state.steps, self.episode_length)
+            else:
+                dist = jnp.linalg.norm(qpos[:, :2] - self.origins[levels, e["col"], :2], axis=1)
+                asked = curriculum.asked_distance(path, state.steps, self.episode_length)
             moved = curriculum.next_levels(levels, dist, asked, c.terrain_cell_size, self.num_levels,
                                            jax.random.randint(key, levels.shape, 0, self.num_levels, jnp.int32))
             levels = jnp.where(ended & ~mg.diverged(state.data), moved, levels)
         extra = {**e, "level": levels, "commanded": jnp.where(ended[:, None], 0.0, path),
-                 "commanded_heading": jnp.where(ended, 0.0, heading)}
+                 "commanded_heading": jnp.where(ended, 0.0, heading), "walked": jnp.where(ended, 0.0, walked),
+                 "asked_path": jnp.where(ended, 0.0, asked_path)}
         return state._replace(extra=extra), out._replace(extras=metrics)
 
     # ---- evaluation ---------------------------------------------------------------------------------

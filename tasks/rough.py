@@ -7,9 +7,11 @@ A task composes one ``TerrainState`` (``tasks/go1_rough.py``: ``go1_joystick_rou
 * reset: ``place`` moves new episodes to their cell's origin (plus the task's own xy jitter) at the standing
   height above the highest ground within ``spawn_radius`` of any foot, so the feet start on the surface, not in it;
 * each step: ``record_step`` advances each env's commanded path (``curriculum.advance_commanded_path``: where a
-  robot following its commands exactly would be) and sums its velocity-tracking reward;
+  robot following its commands exactly would be) and its path measure (``curriculum.advance_walked_path``: the
+  distance made along the command, the commanded path's length) and sums its velocity-tracking reward;
 * episode end (auto-reset): ``episode_end`` applies legged_gym's terrain curriculum (``curriculum.next_levels``:
-  distance from the cell's origin vs half a cell and vs half of the commanded path's reach) and, on, the command
+  by ``curriculum_distance``, the distance from the cell's origin vs half a cell and vs half of the commanded path's
+  reach, or the distance made along the command vs half a cell and vs half of the commanded path) and, on, the command
   curriculum (``command_fraction`` of the final command ranges widens by ``command_step`` once the episodes that
   ended since the last update, at least ``num_envs`` of them, tracked at ``command_threshold`` of the tracking
   reward's maximum); envs that diverged (MuJoCo instability) keep their level;
@@ -67,6 +69,11 @@ class RoughConfig:
     # ``--resume``), since the workers' curricula are not in the checkpoint
     init_level_weights: tuple[float, ...] = ()
     terrain_curriculum: bool = True
+    # what the terrain curriculum measures (tasks/curriculum.py): "displacement", legged_gym's (the base's distance
+    # from its cell's origin against half a cell, and against half of the commanded path's reach), or "path" (the
+    # distance made along the commanded direction against half a cell, and against half of the commanded path's
+    # length), for tasks that hold one yaw-rate command a whole episode (circular paths: Go2, G1)
+    curriculum_distance: str = "displacement"
     # the heightfield's contact solref; () keeps the floor plane's (0.02, 1). A foot that sinks deeper than its
     # collision sphere's radius meets the side faces of the heightfield's prisms (horizontal contact normals on flat
     # ground: docs/TERRAIN.md); the stiffer contact (time constant 0.01 s, >= 2 physics steps of every task here)
@@ -154,6 +161,8 @@ class TerrainState:
         if not 0 <= c.max_init_level < c.terrain_levels:
             raise ValueError(f"max_init_level {c.max_init_level} must lie in [0, terrain_levels)")
         check_level_weights(c)
+        if c.curriculum_distance not in ("displacement", "path"):
+            raise ValueError(f"curriculum_distance must be 'displacement' or 'path', got {c.curriculum_distance!r}")
         if len(c.terrain_solref) not in (0, 2):
             raise ValueError(f"terrain_solref must be () or (timeconst, dampratio), got {c.terrain_solref}")
         self.config, self.num_envs = c, num_envs
@@ -169,6 +178,9 @@ class TerrainState:
         # this episode's commanded path (curriculum.advance_commanded_path): its displacement and heading
         self.commanded = np.zeros((num_envs, 2))
         self.commanded_heading = np.zeros(num_envs)
+        # the path measure (curriculum.advance_walked_path): distance made along the command, commanded path length
+        self.walked = np.zeros(num_envs)
+        self.asked_path = np.zeros(num_envs)
         self.tracking_sum = np.zeros(num_envs)
         self.command_fraction = np.array(c.command_start if c.command_curriculum else (1.0, 1.0, 1.0))
         self._cmd_tracking, self._cmd_episodes = 0.0, 0
@@ -216,11 +228,14 @@ class TerrainState:
         x, y = qpos[:, 0], qpos[:, 1]
         return (x < x0) | (x > x1) | (y < y0) | (y > y1)
 
-    def record_step(self, command: np.ndarray, tracking: np.ndarray) -> None:
-        """Advances each env's commanded path by a control step of ``command`` and adds the step's tracking reward
-        (in [0, 1]) to its episode sum."""
+    def record_step(self, command: np.ndarray, tracking: np.ndarray, velocity: np.ndarray, yaw: np.ndarray) -> None:
+        """Advances each env's commanded path by a control step of ``command`` and the path measure by the base's
+        world-frame planar ``velocity [M, 2]`` at ``yaw [M]``, and adds the step's tracking reward (in [0, 1]) to
+        its episode sum."""
         self.commanded, self.commanded_heading = curriculum.advance_commanded_path(
             self.commanded, self.commanded_heading, command, self.ctrl_dt)
+        self.walked, self.asked_path = curriculum.advance_walked_path(self.walked, self.asked_path, velocity, yaw,
+                                                                      command, self.ctrl_dt)
         self.tracking_sum += tracking
 
     def episode_end(self, idx: np.ndarray, qpos: np.ndarray, steps: np.ndarray, diverged: np.ndarray) -> None:
@@ -229,8 +244,12 @@ class TerrainState:
         c = self.config
         if not self.frozen and c.terrain_curriculum:
             ok = idx[~diverged]
-            dist = np.linalg.norm(qpos[~diverged, :2] - self.origins(ok)[:, :2], axis=1)
-            asked = curriculum.asked_distance(self.commanded[ok], steps[~diverged], self.episode_length)
+            if c.curriculum_distance == "path":
+                dist = self.walked[ok]
+                asked = curriculum.per_episode(self.asked_path[ok], steps[~diverged], self.episode_length)
+            else:
+                dist = np.linalg.norm(qpos[~diverged, :2] - self.origins(ok)[:, :2], axis=1)
+                asked = curriculum.asked_distance(self.commanded[ok], steps[~diverged], self.episode_length)
             self.levels[ok] = curriculum.next_levels(self.levels[ok], dist, asked, c.terrain_cell_size,
                                                      c.terrain_levels, self._rng.integers(0, c.terrain_levels, ok.size))
         if not self.frozen and c.command_curriculum:
@@ -244,6 +263,8 @@ class TerrainState:
                 self._cmd_tracking, self._cmd_episodes = 0.0, 0
         self.commanded[idx] = 0.0
         self.commanded_heading[idx] = 0.0
+        self.walked[idx] = 0.0
+        self.asked_path[idx] = 0.0
         self.tracking_sum[idx] = 0.0
 
     def episode_metrics(self, levels: np.ndarray) -> dict[str, np.ndarray]:
@@ -330,7 +351,8 @@ class RoughTask:
 
     def _after_physics(self, a: np.ndarray, unstable: np.ndarray) -> base.StepOut:
         tracking = go1_math.reward_tracking_lin_vel(self.command, self._s("local_linvel"), self.config.tracking_sigma)
-        self.rough.record_step(self.command, tracking)
+        qpos = self.sim.qpos
+        self.rough.record_step(self.command, tracking, self.sim.qvel[:, :2], terrain.yaw_from_quat(qpos[:, 3:7]))
         self._diverged = unstable | ~np.isfinite(self.sim.qpos).all(axis=1)
         levels = self.rough.levels.copy()  # the ended episodes' levels, before the curriculum moves them
         out = super()._after_physics(a, unstable)

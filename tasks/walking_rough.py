@@ -42,6 +42,8 @@ class Go2RoughConfig(Go2JoystickConfig, rough.SmallQuadrupedRough):
 
     dr_motor_strength: tuple[float, float] = (0.9, 1.1)  # on for rough ground (the flat task's default: off)
     dr_action_delay: tuple[int, int] = (0, 1)
+    # one yaw-rate command per episode: circular paths, promoted by the distance made along them (tasks/curriculum.py)
+    curriculum_distance: str = "path"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +56,7 @@ class G1RoughConfig(G1WalkConfig, rough.RoughConfig):
     terrain_obstacle_height: tuple[float, float] = (0.02, 0.12)
     dr_motor_strength: tuple[float, float] = (0.9, 1.1)
     dr_action_delay: tuple[int, int] = (0, 1)
+    curriculum_distance: str = "path"  # as Go2's
     sole_radius: float = 0.02  # the 5 mm sole spheres sank past their radius into the heightfield
 
 

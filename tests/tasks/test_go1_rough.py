@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import tasks
-from tasks import go1_math, rough, terrain
+from tasks import curriculum, go1_math, rough, terrain
 from unilab_jax.metrics import WALKING
 
 CLEAN = {"noise_level": 0.0, "domain_randomization": False}
@@ -141,7 +141,7 @@ def test_command_curriculum_widens_after_well_tracked_episodes_and_off_map_trunc
     np.testing.assert_allclose(state.command_fraction, [0.5, 0.5, 0.5])
     cmd = np.zeros((2, 3))
     for _ in range(10):  # a full episode tracked at 0.9 of the maximum
-        state.record_step(cmd, np.full(2, 0.9))
+        state.record_step(cmd, np.full(2, 0.9), np.zeros((2, 2)), np.zeros(2))
     qpos = np.zeros((2, 7))
     qpos[:, :2] = state.origins(np.arange(2))[:, :2]
     state.episode_end(np.array([0]), qpos[:1], np.array([10]), np.array([False]))
@@ -149,12 +149,42 @@ def test_command_curriculum_widens_after_well_tracked_episodes_and_off_map_trunc
     state.episode_end(np.array([1]), qpos[1:], np.array([10]), np.array([False]))
     np.testing.assert_allclose(state.command_fraction, 0.6)  # mean 0.9 >= 0.8: + 0.1 per axis
     for _ in range(5):  # half an episode at 0.9 (then it fell): 0.45 per step of a full episode
-        state.record_step(cmd, np.full(2, 0.9))
+        state.record_step(cmd, np.full(2, 0.9), np.zeros((2, 2)), np.zeros(2))
     state.episode_end(np.arange(2), qpos, np.array([5, 5]), np.zeros(2, bool))
     np.testing.assert_allclose(state.command_fraction, 0.6)
     # the map is 4 m x 2 m of cells within a 2 m border: robots within 1 m of its edge are off it
     np.testing.assert_array_equal(state.off_map(np.array([[-0.9, 1, 0], [-1.1, 1, 0], [4.9, 1, 0], [1, 3.1, 0.0]])),
                                   [False, True, False, True])
+
+
+def test_path_curriculum_promotes_a_robot_that_rides_its_circle():
+    """One yaw-rate command a whole episode: 0.5 m/s at 2 pi / 20 rad/s is a full circle in 20 s. A robot that rides
+    it ends where it started: the displacement rule keeps it (0 m from the origin, 0 asked), the path rule promotes
+    it (10 m made along its command > 4 m). One that stood still and one that backed away against its command
+    (-5 m) are demoted by the path rule (< 10 m / 2); the displacement rule keeps both (a full circle asks for 0 m)."""
+    steps, dt = 1000, 0.02
+    for mode, expected in (("displacement", [3, 3, 3]), ("path", [4, 2, 2])):
+        config = rough.RoughConfig(terrain_columns=("rough",), max_init_level=3, curriculum_distance=mode)
+        state = rough.TerrainState(config, num_envs=3, seed=0, ctrl_dt=dt, episode_length=steps)
+        state.levels[:] = 3
+        cmd = np.tile([0.5, 0.0, 2 * np.pi / 20], (3, 1))
+        yaw = np.zeros(3)
+        for _ in range(steps):
+            heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+            velocity = heading * np.array([[0.5], [0.0], [-0.25]])  # env 0 rides the circle, 2 backs along it
+            state.record_step(cmd, np.ones(3), velocity, yaw)
+            yaw = yaw + np.array([2 * np.pi / 20, 0.0, 2 * np.pi / 20]) * dt
+        qpos = np.zeros((3, 7))
+        # env 0 back near its start, env 1 never left (sway), env 2 on its small circle: 0.05-0.1 m from the start
+        qpos[:, :2] = state.origins(np.arange(3))[:, :2] + [[0.05, 0.0], [0.0, 0.05], [0.0, 0.1]]
+        state.episode_end(np.arange(3), qpos, np.full(3, steps), np.zeros(3, bool))
+        np.testing.assert_array_equal(state.levels, expected, err_msg=mode)
+        np.testing.assert_array_equal(state.walked, 0.0)  # the next episode starts its sums again
+    np.testing.assert_allclose(curriculum.advance_walked_path(
+        np.zeros(2), np.zeros(2), np.array([[0.0, 1.0], [3.0, 4.0]]), np.array([np.pi / 2, 0.0]),
+        np.array([[2.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), 0.5), [[0.5, 0.0], [1.0, 0.0]], atol=1e-12)
+    with pytest.raises(ValueError, match="curriculum_distance"):
+        rough.TerrainState(rough.RoughConfig(curriculum_distance="reach"), 1, 0, 0.02, 10)
 
 
 def _walker(policy_file: str):

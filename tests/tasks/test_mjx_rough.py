@@ -20,7 +20,7 @@ import pytest
 from compile_options import FAST_COMPILE
 
 import tasks
-from tasks import go1_math, mjx_rough
+from tasks import go1_math, mjx_rough, terrain
 from tasks.mjx_go1 import Go1MjxState, mjx
 from unilab_jax.training.mjx import make_env
 
@@ -170,7 +170,8 @@ def test_terrain_curriculum_at_episode_end_matches_cpu(go1):
     task.rough.episode_end(np.arange(5), qpos[:5], steps[:5], np.isnan(qvel[:5]).any(axis=1))
     data = _data(go1, qpos, np.nan_to_num(qvel)).replace(qvel=_f32(qvel))
     extra = {"level": jnp.asarray(levels, jnp.int32), "col": jnp.asarray(task.rough.cols, jnp.int32),
-             "commanded": _f32(path), "commanded_heading": _f32(np.zeros(6))}
+             "commanded": _f32(path), "commanded_heading": _f32(np.zeros(6)), "walked": _f32(np.zeros(6)),
+             "asked_path": _f32(np.zeros(6))}
     info = {"command": _f32(command)}
     before = Go1MjxState(data=None, model_fields={}, pose_offset=None, info=info, steps_until_next_cmd=None,
                          steps=None, obs=None, critic_obs=None, episode_return=None, episode_length=None, key=None,
@@ -186,6 +187,51 @@ def test_terrain_curriculum_at_episode_end_matches_cpu(go1):
     np.testing.assert_array_equal(np.asarray(out.extras["terrain_level_3"]), levels == 3)
     np.testing.assert_allclose(np.asarray(state.extra["commanded"])[:, 0], [0, 0, 0, 0, 0, 100 * 0.5 * dt], rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(state.extra["commanded_heading"]), np.zeros(6))
+
+
+def test_path_curriculum_at_episode_end_matches_cpu():
+    """``curriculum_distance="path"`` (Go2's and G1's): up after more than half a cell made along the command, down
+    after less than half of the commanded path, kept in between and when diverged; the sums restart at episode end.
+    The MJX side adds the last step's velocity itself; the CPU side gets it through ``record_step``."""
+    over = {**OVERRIDES, "curriculum_distance": "path"}
+    env = make_env("go1_joystick_rough", M, over, FAST_COMPILE).env
+    task = tasks.make("go1_joystick_rough", 6, seed=0, overrides=over)
+    task.reset()
+    levels = np.array([3, 3, 3, 3, 9, 0])
+    task.rough.levels[:] = levels
+    qpos = task.sim.qpos.copy()
+    qpos[:, 2] += 0.3  # feet off the ground: MuJoCo's heightfield contacts would overrun MJX's contact budget
+    yaw = terrain.yaw_from_quat(qpos[:, 3:7])  # the reset's headings
+    qvel = np.zeros((6, task.model.nv))
+    qvel[:, :2] = 0.5 * np.stack([np.cos(yaw), np.sin(yaw)], axis=1)  # 0.5 m/s along each heading
+    qvel[3, 0] = np.nan  # env 3 diverged
+    command = np.tile([0.5, 0.0, 0.0], (6, 1))  # asked: 0.5 m/s x 20 s = 10 m (half: 5 m); env 2: 6 m (3 m)
+    command[2, 0] = 0.3
+    dt, steps = task.config.ctrl_dt, np.full(6, 100)
+    walked0 = np.array([4.5, 0.2, 3.5, 0.2, 5.0, 0.1])  # made along the command in the first 99 steps
+    asked0 = command[:, 0] * 99 * dt
+    ended = np.array([True, True, True, True, True, False])
+
+    task.rough.walked[:], task.rough.asked_path[:] = walked0, asked0
+    task.rough.record_step(command, np.zeros(6), np.nan_to_num(qvel[:, :2]), yaw)
+    task.rough.episode_end(np.arange(5), qpos[:5], steps[:5], np.isnan(qvel[:5]).any(axis=1))
+    data = _data(env, qpos, np.nan_to_num(qvel)).replace(qvel=_f32(qvel))
+    extra = {"level": jnp.asarray(levels, jnp.int32), "col": jnp.asarray(task.rough.cols, jnp.int32),
+             "commanded": _f32(np.zeros((6, 2))), "commanded_heading": _f32(np.zeros(6)), "walked": _f32(walked0),
+             "asked_path": _f32(asked0)}
+    before = Go1MjxState(data=None, model_fields={}, pose_offset=None, info={"command": _f32(command)},
+                         steps_until_next_cmd=None, steps=None, obs=None, critic_obs=None, episode_return=None,
+                         episode_length=None, key=None, extra=extra)
+    after = before._replace(data=data, steps=jnp.asarray(steps, jnp.int32))
+    out = mjx_rough.mg.MjxStepOut(*([None] * 10))
+    state, out = env.after_transition(before, after, out, jnp.asarray(ended), jax.random.PRNGKey(0))
+    new = np.asarray(state.extra["level"])
+    np.testing.assert_array_equal(new[:4], task.rough.levels[:4])
+    np.testing.assert_array_equal(new[:4], [4, 2, 3, 3])
+    assert 0 <= new[4] < 10 and new[5] == 0
+    np.testing.assert_allclose(np.asarray(state.extra["walked"]), [0, 0, 0, 0, 0, 0.1 + 0.5 * dt], rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(state.extra["asked_path"]), [0, 0, 0, 0, 0, 0.5 * 100 * dt], rtol=1e-5)
+    np.testing.assert_array_equal(task.rough.walked[:5], 0.0)
 
 
 def test_g1_heights_above_ground_and_motor_strength_match_cpu(g1):
