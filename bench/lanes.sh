@@ -9,7 +9,8 @@
 # call; a run cut short records its budget (a lower bound in --report). ROBOTS: the archives to unpack
 # (bench/device_setup.sh; robots unpacked and wheels copied by an earlier call on the same warm machine stay); SETUP=0
 # skips that set-up. Under $OUT: machine.txt and lanes.tgz: ttt/ttt_<config>_s<seed>.json (a record file per run:
-# no two processes append to one file), logs/ (each lane's and run's), metrics/ (half-second means).
+# no two processes append to one file), ttt/lanes.jsonl (each run's GPU, cores and start), logs/ (each lane's and
+# run's), metrics/ (half-second means).
 set -u
 OUT=${OUT:-/tmp/lanes}; mkdir -p "$OUT"; W=$(mktemp -d); mkdir -p "$W/metrics" "$W/logs" "$W/ttt"
 START=$(date +%s); DEADLINE=${DEADLINE:-540}; CORES=${CORES:-16}
@@ -30,6 +31,8 @@ run_lane() {  # lane index, items
     if [ "$left" -lt 60 ]; then echo "lane $i: $cfg seed $seed skipped ($left s left)"; continue; fi
     [ "$cap" -gt "$left" ] && cap=$left
     echo "lane $i: $cfg seed $seed, $cap s, from $(($(date +%s) - START)) s"
+    printf '{"config": "%s", "seed": %s, "gpu": %s, "cores": "%s-%s", "started_s": %s, "max_seconds": %s}\n' \
+      "$cfg" "$seed" "$i" "$first" "$last" "$(($(date +%s) - START))" "$cap" >> "$W/ttt/lanes.jsonl"
     env CUDA_VISIBLE_DEVICES="$i" taskset -c "$first-$last" python3 bench/time_to_target.py --only "$cfg" \
       --seed "$seed" --max_seconds "$cap" --commit "${COMMIT:-unknown}" --runs_dir "$W/runs_$i" \
       --metrics_dir "$W/metrics" --out "$W/ttt/ttt_${cfg}_s${seed}.json" > "$W/logs/${cfg}_s${seed}.log" 2>&1
