@@ -28,14 +28,16 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
 # --no-loadscope-reorder: xdist's default order, most tests first, left the files of one or two long tests, learning
 # runs and MJX compiles, for the end, one of them running alone for ~60 s). The files that took 15 s or more are
 # collected first, longest first (the mean of two whole `make test` runs' walls, docs/dev/TESTING.md "Eleventh
-# phase-3 session"), so short files are left for the end.
+# phase-3 session"), so short files are left for the end. test_replay_rings.py added (2026-11-28, one whole run at
+# 959b6bb: 29.5 s, the late worker's last long file; the workers then ended 11.0 s apart, 991.8 and 980.8 s).
 FIRST = ("test_rlpd_experiments.py", "test_offpolicy_training.py", "test_mjx_walking_parity.py", "test_mjx_training.py",
          "test_robot_runtime.py", "test_compute_dtype.py", "test_experiments.py", "test_hora_him.py",
          "test_notebooks.py", "test_flow_experiments.py", "test_ray_rollouts.py", "test_mjx_allegro_parity.py",
          "test_play_export.py", "test_pixel_learning.py", "test_web.py", "test_hgdagger.py", "test_mjx_rough.py",
-         "test_image_learners.py", "test_sharding.py", "test_mjx_parity.py", "test_mlx_only_install.py",
-         "test_image_obs.py", "test_stop.py", "test_ppo_parity.py", "test_sacflow_training.py", "test_core_jit.py",
-         "test_training.py", "test_hora_him_experiments.py", "test_robot_experts.py", "test_recovery.py",
+         "test_replay_rings.py", "test_image_learners.py", "test_sharding.py", "test_mjx_parity.py",
+         "test_mlx_only_install.py", "test_image_obs.py", "test_stop.py", "test_ppo_parity.py",
+         "test_sacflow_training.py", "test_core_jit.py", "test_training.py", "test_hora_him_experiments.py",
+         "test_robot_experts.py", "test_recovery.py",
          "test_offpolicy_parity.py", "test_offpolicy_learners.py", "test_api.py", "test_robot_server.py",
          "test_allegro_experiments.py")
 
