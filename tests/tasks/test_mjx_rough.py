@@ -54,6 +54,21 @@ def _data(env, qpos, qvel):
     return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *rows)
 
 
+def _mjx_episode_end(env, qpos, qvel, levels, cols, command, steps, ended, **sums):
+    """``env.after_transition`` (eagerly) of one step that left the envs at ``(qpos, qvel)`` with per-env ``steps``,
+    ``ended`` flags and the state's sums of the episode so far (``commanded``, ``commanded_heading``, ``walked``,
+    ``asked_path``); returns (state, out)."""
+    data = _data(env, qpos, np.nan_to_num(qvel)).replace(qvel=_f32(qvel))
+    extra = {"level": jnp.asarray(levels, jnp.int32), "col": jnp.asarray(cols, jnp.int32),
+             **{k: _f32(v) for k, v in sums.items()}}
+    before = Go1MjxState(data=None, model_fields={}, pose_offset=None, info={"command": _f32(command)},
+                         steps_until_next_cmd=None, steps=None, obs=None, critic_obs=None, episode_return=None,
+                         episode_length=None, key=None, extra=extra)
+    after = before._replace(data=data, steps=jnp.asarray(steps, jnp.int32))
+    out = mjx_rough.mg.MjxStepOut(*([None] * 10))
+    return env.after_transition(before, after, out, jnp.asarray(ended), jax.random.PRNGKey(0))
+
+
 @pytest.fixture(scope="module")
 def go1():
     return make_env("go1_joystick_rough", M, OVERRIDES, FAST_COMPILE).env
@@ -168,17 +183,8 @@ def test_terrain_curriculum_at_episode_end_matches_cpu(go1):
 
     task.rough.commanded[:] = path + np.stack([command[:, 0] * dt, np.zeros(6)], 1)
     task.rough.episode_end(np.arange(5), qpos[:5], steps[:5], np.isnan(qvel[:5]).any(axis=1))
-    data = _data(go1, qpos, np.nan_to_num(qvel)).replace(qvel=_f32(qvel))
-    extra = {"level": jnp.asarray(levels, jnp.int32), "col": jnp.asarray(task.rough.cols, jnp.int32),
-             "commanded": _f32(path), "commanded_heading": _f32(np.zeros(6)), "walked": _f32(np.zeros(6)),
-             "asked_path": _f32(np.zeros(6))}
-    info = {"command": _f32(command)}
-    before = Go1MjxState(data=None, model_fields={}, pose_offset=None, info=info, steps_until_next_cmd=None,
-                         steps=None, obs=None, critic_obs=None, episode_return=None, episode_length=None, key=None,
-                         extra=extra)
-    after = before._replace(data=data, steps=jnp.asarray(steps, jnp.int32))
-    out = mjx_rough.mg.MjxStepOut(*([None] * 10))
-    state, out = go1.after_transition(before, after, out, jnp.asarray(ended), jax.random.PRNGKey(0))
+    state, out = _mjx_episode_end(go1, qpos, qvel, levels, task.rough.cols, command, steps, ended, commanded=path,
+                                  commanded_heading=np.zeros(6), walked=np.zeros(6), asked_path=np.zeros(6))
     new = np.asarray(state.extra["level"])
     np.testing.assert_array_equal(new[:4], task.rough.levels[:4])
     np.testing.assert_array_equal(new[:4], [4, 2, 3, 3])
@@ -215,16 +221,9 @@ def test_path_curriculum_at_episode_end_matches_cpu():
     task.rough.walked[:], task.rough.asked_path[:] = walked0, asked0
     task.rough.record_step(command, np.zeros(6), np.nan_to_num(qvel[:, :2]), yaw)
     task.rough.episode_end(np.arange(5), qpos[:5], steps[:5], np.isnan(qvel[:5]).any(axis=1))
-    data = _data(env, qpos, np.nan_to_num(qvel)).replace(qvel=_f32(qvel))
-    extra = {"level": jnp.asarray(levels, jnp.int32), "col": jnp.asarray(task.rough.cols, jnp.int32),
-             "commanded": _f32(np.zeros((6, 2))), "commanded_heading": _f32(np.zeros(6)), "walked": _f32(walked0),
-             "asked_path": _f32(asked0)}
-    before = Go1MjxState(data=None, model_fields={}, pose_offset=None, info={"command": _f32(command)},
-                         steps_until_next_cmd=None, steps=None, obs=None, critic_obs=None, episode_return=None,
-                         episode_length=None, key=None, extra=extra)
-    after = before._replace(data=data, steps=jnp.asarray(steps, jnp.int32))
-    out = mjx_rough.mg.MjxStepOut(*([None] * 10))
-    state, out = env.after_transition(before, after, out, jnp.asarray(ended), jax.random.PRNGKey(0))
+    state, out = _mjx_episode_end(env, qpos, qvel, levels, task.rough.cols, command, steps, ended,
+                                  commanded=np.zeros((6, 2)), commanded_heading=np.zeros(6), walked=walked0,
+                                  asked_path=asked0)
     new = np.asarray(state.extra["level"])
     np.testing.assert_array_equal(new[:4], task.rough.levels[:4])
     np.testing.assert_array_equal(new[:4], [4, 2, 3, 3])
