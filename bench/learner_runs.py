@@ -40,8 +40,8 @@ def rates(rows: list[dict], start: float, end: float, steps_per_call: int) -> di
     if len(calls) < 2:
         return {"calls": len(calls)}
     span = calls[-1]["time/wall_s"] - calls[0]["time/wall_s"]
-    gaps = sorted(b["time/wall_s"] - a["time/wall_s"] for a, b in zip(calls, calls[1:]))
-    if "compact/rows" in calls[0] or gaps[len(gaps) // 2] < BINNED_GAP_S:
+    gap = _median([b["time/wall_s"] - a["time/wall_s"] for a, b in zip(calls, calls[1:])])
+    if "compact/rows" in calls[0] or gap < BINNED_GAP_S:
         # a row per call, or bench/compact_metrics.py's bins with the count of calls each stands for
         n = sum(int(r.get("compact/rows", 1)) for r in calls)
         per_s, source = (n - calls[0].get("compact/rows", 1)) / span, "rows"

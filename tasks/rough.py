@@ -353,7 +353,7 @@ class RoughTask:
         tracking = go1_math.reward_tracking_lin_vel(self.command, self._s("local_linvel"), self.config.tracking_sigma)
         qpos = self.sim.qpos
         self.rough.record_step(self.command, tracking, self.sim.qvel[:, :2], terrain.yaw_from_quat(qpos[:, 3:7]))
-        self._diverged = unstable | ~np.isfinite(self.sim.qpos).all(axis=1)
+        self._diverged = unstable | ~np.isfinite(qpos).all(axis=1)
         levels = self.rough.levels.copy()  # the ended episodes' levels, before the curriculum moves them
         out = super()._after_physics(a, unstable)
         return out._replace(extras=self.rough.episode_metrics(levels))
