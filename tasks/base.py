@@ -75,14 +75,16 @@ class StepOut(NamedTuple):
 class StepInterrupted(Exception):
     """Raised by ``Task.step`` when the step could not be completed (e.g. a robot was lost, and the task
     waited until it or another robot answered again): the step produced no transition, every env was
-    reset, and ``obs`` / ``critic_obs`` are the observations the next step starts from."""
+    reset, and ``obs`` / ``critic_obs`` are the observations the next step starts from. ``stopped``: the envs
+    whose robot refused the policy's command on a safety limit (a protective stop), when that is all that
+    interrupted the step (empty when a robot was lost)."""
 
-    def __init__(self, reason: str, obs: np.ndarray, critic_obs: np.ndarray):
+    def __init__(self, reason: str, obs: np.ndarray, critic_obs: np.ndarray, stopped: tuple[int, ...] = ()):
         super().__init__(reason)
-        self.obs, self.critic_obs = obs, critic_obs
+        self.obs, self.critic_obs, self.stopped = obs, critic_obs, tuple(stopped)
 
     def __reduce__(self) -> tuple:  # pickled whole: an evaluation process raises it to the trainer
-        return type(self), (str(self), self.obs, self.critic_obs)
+        return type(self), (str(self), self.obs, self.critic_obs, self.stopped)
 
 
 def _nothing() -> None:

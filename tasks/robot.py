@@ -59,7 +59,14 @@ import numpy as np
 from tasks import base
 from unilab_jax.fields import IMAGE_FIELDS
 from unilab_jax.robots.client import RobotClient
-from unilab_jax.robots.interface import Robot, RobotClaimed, RobotDisconnected, RobotError, RobotSpec
+from unilab_jax.robots.interface import (
+    Robot,
+    RobotClaimed,
+    RobotDisconnected,
+    RobotError,
+    RobotSpec,
+    is_protective_stop,
+)
 from unilab_jax.robots.inventory import check_address, client_keys, compatible
 from unilab_jax.robots.operator import ExpertOperator, OperatorConfig
 
@@ -378,8 +385,9 @@ class RobotTask(base.Task):
         if lost:  # no transition for anyone: every env starts again once the lost robots are back
             reason = "; ".join(f"{self.config.robots[self.slots[i]] if self.config.robots else i}: "
                                f"{type(got[i]).__name__}: {got[i]}" for i in sorted(lost))
+            stopped = tuple(sorted(lost)) if all(is_protective_stop(got[i]) for i in lost) else ()
             self._reset_all(lost)
-            raise base.StepInterrupted(reason, *self._observe_all())
+            raise base.StepInterrupted(reason, *self._observe_all(), stopped=stopped)
         self.steps += 1
         self._late += np.array([bool(g.info["late"]) for g in got])
         reward = np.array([g.reward for g in got], np.float32)

@@ -150,3 +150,21 @@ def test_an_evaluation_process_gives_the_thread_s_result_and_stops_when_asked(tm
 
     back = pickle.loads(pickle.dumps(e))
     assert str(back) == "tcp://robot: lost" and back.obs.tolist() == [1, 1] and back.critic_obs.shape == (3,)
+
+
+def test_a_run_whose_last_evaluation_was_dropped_says_so_in_its_summary(tmp_path, monkeypatch):
+    from tasks.base import StepInterrupted
+    from unilab_jax import algos
+    from unilab_jax.config import apply_overrides
+    from unilab_jax.training.trainer import RunConfig, Trainer
+
+    def lost(self, weights, seed, stop=None):
+        raise StepInterrupted("tcp://robot: RobotDisconnected: lost", None, None)
+
+    monkeypatch.setattr(Trainer, "evaluate", lost)
+    module = algos.get("ppo")
+    config = apply_overrides(module.Config(), {"actor_hidden": (8,), "critic_hidden": (8,), "horizon": 8})
+    run = RunConfig(algo="ppo", task="cartpole_balance", logdir=str(tmp_path), num_workers=1, envs_per_worker=4,
+                    total_steps=64, serial=True, eval_envs=2, eval_process="off")
+    summary = Trainer(run, module, config, {}).train()
+    assert summary["eval/dropped"] == 1 and "eval/return" not in summary and not summary["interrupted"]

@@ -1,5 +1,6 @@
-"""``run_episodes`` on a robot task whose step is interrupted (a lost robot, a protective stop): every env was
-reset, so the evaluation's episodes start over, at most ``MAX_EVAL_RESTARTS`` times."""
+"""``run_episodes`` on a robot task whose step is interrupted: after a lost robot every env was reset, so the
+evaluation's episodes start over, at most ``MAX_EVAL_RESTARTS`` times; a protective stop (the robot refused the
+policy's command) ends them there, the stopped ones failed."""
 
 from __future__ import annotations
 
@@ -19,8 +20,8 @@ class _Robots:
     spec = SimpleNamespace(name="robot_stub", episode_length=10, success_on_termination=True, obs_dim=1,
                            reward_terms=())
 
-    def __init__(self, interrupt_at: set[int]):
-        self.calls, self.t, self.interrupt_at = 0, 0, interrupt_at
+    def __init__(self, interrupt_at: set[int], stopped: tuple[int, ...] = ()):
+        self.calls, self.t, self.interrupt_at, self.stopped = 0, 0, interrupt_at, stopped
 
     def reset(self):
         self.t = 0
@@ -30,7 +31,7 @@ class _Robots:
         self.calls += 1
         if self.calls in self.interrupt_at:
             obs, critic = self.reset()
-            raise StepInterrupted("protective stop", obs, critic)
+            raise StepInterrupted("robot lost" if not self.stopped else "protective stop", obs, critic, self.stopped)
         self.t += 1
         done = np.full(2, self.t == 3)
         obs, zero = np.full((2, 1), self.t, np.float32), np.zeros((2, 1), np.float32)
@@ -50,3 +51,11 @@ def test_an_evaluation_interrupted_too_often_raises():
     with pytest.raises(StepInterrupted):
         run_episodes(task, lambda obs: np.zeros((2, 7), np.float32))
     assert task.calls == MAX_EVAL_RESTARTS + 1
+
+
+def test_a_protective_stop_ends_the_evaluation_s_episodes_as_failed():
+    task = _Robots({2}, stopped=(1,))
+    _, stats = run_episodes(task, lambda obs: np.zeros((2, 7), np.float32))
+    assert task.calls == 2 and "restarts" not in stats  # not started over: the policy's commands stopped the robot
+    assert stats["protective_stops"] == 1 and stats["success_rate"] == 0.0
+    assert stats["return"] == 1.0 and stats["episode_length"] == 1.0  # the step before the stop

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from unilab_jax.robots import ik, limits
-from unilab_jax.robots.interface import RobotEstopped
+from unilab_jax.robots.interface import RobotEstopped, is_protective_stop
 from unilab_jax.robots.sim import SimConfig, SimRobot
 
 LIMITS = limits.SafetyLimits()
@@ -73,9 +73,10 @@ def test_joint_targets_move_at_most_max_joint_speed_per_period():
 ])
 def test_force_and_tcp_speed_limits_stop_the_robot_until_cleared(limit, action, detail):
     r = robot(**limit)
-    with pytest.raises(RobotEstopped, match=f"protective stop: {detail}"):
+    with pytest.raises(RobotEstopped, match=f"protective stop: {detail}") as e:
         for _ in range(60):
             r.step(np.array(action, np.float32))
+    assert is_protective_stop(e.value)  # what a robot task's StepInterrupted.stopped reads
     health = r.health()
     name = "force" if "max_force" in limit else "tcp_speed"
     assert health.state == "estopped" and health.limit_hits[name] >= 1 and detail in health.detail

@@ -18,8 +18,8 @@ from script_helpers import run_in_process
 import tasks
 from tasks.base import StepInterrupted
 from unilab_jax.robots.client import query
-from unilab_jax.robots.interface import RobotFaulted
-from unilab_jax.robots.inventory import InventoryError, discover, parse
+from unilab_jax.robots.interface import RobotDisconnected, RobotEstopped, RobotFaulted
+from unilab_jax.robots.inventory import InventoryError, LocalServer, discover, parse
 from unilab_jax.runtime.pool import WorkerPool
 from unilab_jax.runtime.worker import STEPS
 
@@ -84,12 +84,12 @@ def test_inventory_toml_and_discovery(tmp_path, serve):
         discover(["tcp://127.0.0.1:1"], timeout_s=0.3)
 
 
-def _fail_once(robot, method: str) -> None:
+def _fail_once(robot, method: str, error: Exception | None = None) -> None:
     real = getattr(robot, method)
 
     def fail(*args):
         setattr(robot, method, real)
-        raise RobotFaulted("injected")
+        raise error or RobotFaulted("injected")
 
     setattr(robot, method, fail)
 
@@ -112,6 +112,26 @@ def test_a_failed_step_is_interrupted_and_a_failed_reset_costs_no_transition():
         out = task.step(zero)
         assert out.truncated.all() and (out.critic_obs[:, -1] == 0).all() and (out.next_critic_obs[:, -1] == 1).all()
         assert task.losses == task.rejoins == 2
+    finally:
+        task.close()
+
+
+def test_a_protective_stop_names_its_env_and_a_lost_robot_none():
+    """StepInterrupted.stopped: the envs whose robot stopped itself on a safety limit, when nothing else interrupted
+    the step (an evaluation ends its episodes there as failed; a lost robot's episodes start over)."""
+    protective = RobotEstopped("emergency stop engaged (protective stop: contact force 1285 N > 1000): call reset()")
+    task = tasks.make("robot_pick_place", 2, seed=0, overrides={"episode_length": 5})
+    try:
+        task.reset()
+        zero = np.zeros((2, 7), np.float32)
+        for errors, stopped in (({1: protective}, (1,)),
+                                ({0: protective, 1: RobotDisconnected("lost")}, ()),
+                                ({0: RobotEstopped("emergency stop engaged: call clear_estop() or reset()")}, ())):
+            for i, error in errors.items():
+                _fail_once(task.robots[i], "step", error)
+            with pytest.raises(StepInterrupted) as e:
+                task.step(zero)
+            assert e.value.stopped == stopped, str(e.value)
     finally:
         task.close()
 
@@ -224,6 +244,11 @@ def test_evaluation_goes_on_with_the_robots_that_answer(serve):
         task.close()
     with pytest.raises(RuntimeError, match="2 robots wanted, 0 free"):  # min_envs is a floor
         tasks.make("robot_pick_place", 2, overrides={**quick, "robots": (dead.address, dead.address), "min_envs": 1})
+
+
+def test_a_local_server_that_fails_to_start_says_why():
+    with pytest.raises(InventoryError, match=r"failed to start \(exit 2\): error: unknown task 'no_such_task'"):
+        LocalServer("franka", "no_such_task", 20.0)
 
 
 _LAUNCHER = """

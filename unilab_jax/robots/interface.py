@@ -47,6 +47,15 @@ class RobotEstopped(RobotError):
     """A step was refused because the emergency stop is engaged (``clear_estop`` or ``reset``)."""
 
 
+PROTECTIVE_STOP = "protective stop"  # how an estop's detail (and so its RobotEstopped) begins when a limit made it
+
+
+def is_protective_stop(error: BaseException) -> bool:
+    """Whether ``error`` refused a step because the robot stopped itself on a safety limit (``robots.limits``):
+    the commands that led there were the policy's, unlike a lost robot or an operator's stop button."""
+    return isinstance(error, RobotEstopped) and f"({PROTECTIVE_STOP}:" in str(error)
+
+
 class RobotClaimed(RobotError):
     """The robot is claimed by another client whose lease has not expired."""
 

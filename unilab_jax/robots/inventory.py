@@ -150,6 +150,7 @@ class LocalServer:
                "--exit_with_parent", *extra]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env={**os.environ, "OMP_NUM_THREADS": "1", **(env or {})})
+        self.stderr = ""
         lines: queue.Queue[str] = queue.Queue()
         threading.Thread(target=lambda: lines.put(self.proc.stdout.readline()), daemon=True).start()
         try:
@@ -159,11 +160,12 @@ class LocalServer:
             raise InventoryError(f"robot server {arm}/{task} did not start within {START_TIMEOUT_S:.0f} s") from None
         if not line.startswith("serving "):
             self.stop()
-            raise InventoryError(f"robot server {arm}/{task} failed to start: {self.proc.stderr.read()[-2000:]}")
+            raise InventoryError(f"robot server {arm}/{task} failed to start (exit {self.proc.returncode}): "
+                                 f"{(line + self.stderr)[-2000:]}")
         self.address = line.split(" on ")[1].strip()
 
     def stop(self) -> int:
-        """SIGTERM, then SIGKILL after 5 s; returns the exit status."""
+        """SIGTERM, then SIGKILL after 5 s; returns the exit status (what the server wrote to stderr: ``stderr``)."""
         if self.proc.poll() is None:
             self.proc.terminate()
             try:
@@ -171,6 +173,8 @@ class LocalServer:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
+        if not self.proc.stderr.closed:
+            self.stderr = self.proc.stderr.read()
         for stream in (self.proc.stdout, self.proc.stderr):
             stream.close()
         return self.proc.returncode

@@ -34,6 +34,7 @@ import numpy as np
 
 from unilab_jax.robots import ik, limits, scenes
 from unilab_jax.robots.interface import (
+    PROTECTIVE_STOP,
     Health,
     Robot,
     RobotError,
@@ -339,7 +340,7 @@ class SimRobot(Robot):
             if beyond:
                 self._hit(name, True)
                 self.estop()
-                self._detail = f"protective stop: {what}"
+                self._detail = f"{PROTECTIVE_STOP}: {what}"
 
     def _hit(self, name: str, hit: bool) -> None:
         self._limit_hits[name] += int(hit)

@@ -116,7 +116,9 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     most ``max_steps`` control steps), rendering env 0 before every step of its episode when ``render`` is
     ``(width, height)``. Returns (frames [T, H, W, 3] uint8, T = env 0's steps, empty without ``render``;
     stats: ``return``/``return_std``/``episode_length`` over the ``episodes`` (envs), ``success_rate`` on tasks
-    whose termination is success, the ``LOGGED`` entries of the task's own metric where it has one
+    whose termination is success, ``protective_stops`` (robots that stopped on a safety limit: every episode
+    ends at that step, the stopped ones failed) and ``restarts`` (episodes started over after a robot was lost)
+    where there were any, the ``LOGGED`` entries of the task's own metric where it has one
     (``task.eval_tracker()``, e.g. ``g1_track``'s clip completion), else the walking metric on locomotion tasks).
     The trainer's evaluations run it too; ``stop`` set before the episodes end raises :class:`StopRequested`."""
     from tasks.base import StepInterrupted
@@ -130,7 +132,7 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
                else WalkingTracker(task) if is_locomotion(task) else None)
     step = tracker.step if tracker is not None else task.step
     renderer = SceneRenderer(task, *render) if render is not None else None
-    restarts = 0
+    restarts = protective_stops = 0
     try:
         obs, _ = task.reset()
         ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
@@ -146,8 +148,11 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
             try:
                 out = step(np.asarray(act(obs), np.float32))
             except StepInterrupted as e:
-                # A robot task lost a robot or made a protective stop: every env was reset, so the episodes start
-                # over (a task with its own tracker keeps state across steps: its evaluation cannot restart).
+                if e.stopped:  # the robots refused the policy's commands: those episodes failed there, and the
+                    protective_stops = len(e.stopped)  # others end with them (the task reset every env)
+                    break
+                # A robot task lost a robot: every env was reset, so the episodes start over (a task with its own
+                # tracker keeps state across steps: its evaluation cannot restart).
                 restarts += 1
                 if tracker is not None or restarts > MAX_EVAL_RESTARTS:
                     raise
@@ -168,6 +173,8 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
              "episodes": float(m)}
     if restarts:
         stats["restarts"] = float(restarts)
+    if protective_stops:
+        stats["protective_stops"] = float(protective_stops)
     if task.spec.success_on_termination:
         stats["success_rate"] = float(terminated.mean())
     if tracker is not None:
@@ -370,9 +377,9 @@ class AsyncEvaluator:
     evaluation slower than ``--eval_every`` would otherwise queue without bound and hold the end of
     the run for minutes); ``skipped`` counts the replaced ones. ``close(cancel=True)`` (an interrupted
     run) drops the waiting one. An evaluation that robot tasks interrupt more often than ``run_episodes``
-    starts over (protective stops, lost robots) is dropped with a warning (``interrupted`` counts them): it
-    ends no run, nor does an evaluation process that died (``lost`` counts what it took). ``in_process``: the
-    episodes run in an :class:`EvaluationProcess` (the thread only waits).
+    starts over (lost robots; a protective stop ends its episodes as failed) is dropped with a warning
+    (``interrupted`` counts them): it ends no run, nor does an evaluation process that died (``lost`` counts
+    what it took). ``in_process``: the episodes run in an :class:`EvaluationProcess` (the thread only waits).
     """
 
     def __init__(self, trainer: Any, stop: threading.Event | None = None, in_process: bool = False):

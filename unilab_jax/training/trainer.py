@@ -407,6 +407,8 @@ class Trainer:
         summary = {"env_steps": counters["env_steps"], "updates": counters["updates"],
                    "wall_s": time.time() - t_start, "logdir": os.path.abspath(run.logdir),
                    "checkpoints": self.ckpt_dir, "interrupted": interrupted, **last_eval}
+        if evaluator.interrupted or evaluator.lost:  # logged as they happened; the summary says why eval/* is older
+            summary["eval/dropped"] = evaluator.interrupted + evaluator.lost
         if diverged is not None:
             summary["diverged"] = str(diverged)
         shortfall = None if interrupted else self._shortfall(counters, source)
