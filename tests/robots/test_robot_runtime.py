@@ -46,7 +46,8 @@ def test_sac_franka_pick_trains_on_two_sim_robots(tmp_path):
     rows = [json.loads(line) for line in open(logdir / "metrics.jsonl")]
     assert rows and rows[-1]["step"] >= 1500 and any("loss/critic_loss" in r or "loss/actor_loss" in r for r in rows)
     summary = json.load(open(logdir / "summary.json"))
-    assert summary["env_steps"] >= 1500 and not summary["interrupted"] and np.isfinite(summary["eval/return"])
+    assert summary["env_steps"] >= 1500 and not summary["interrupted"] and "eval/return" in summary, summary
+    assert np.isfinite(summary["eval/return"])
     assert summary["eval/episodes"] == 2 and 0.0 <= summary["eval/success_rate"] <= 1.0
     # Learning shows while the workers hold the robots: their episodes' success rate is logged.
     success = [r["episode/success_rate"] for r in rows if "episode/success_rate" in r]
