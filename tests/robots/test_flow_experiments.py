@@ -22,8 +22,9 @@ def _run(script: str, *args: str, timeout: float = 300, env: dict | None = None)
 
 def test_sacflow_franka_pick_runs(tmp_path):
     # 800 env steps: learning starts at 300, then utd 4 gives ~2000 flow-actor gradient steps (2000 env steps gave
-    # ~6800, most of this test's time), several pick-place episodes end and the final evaluation runs.
-    out = _run("sacflow_franka_pick.py", "--speed=20", "--total_steps=800", f"--logdir={tmp_path}",
+    # ~6800, most of this test's time), several pick-place episodes end and the final evaluation runs. The robot
+    # unpaced (--speed=inf): the script alone 16.4 -> 12.5 s wall, 17.2 -> 15.9 CPU-s (one run each, 2-core VM).
+    out = _run("sacflow_franka_pick.py", "--speed=inf", "--total_steps=800", f"--logdir={tmp_path}",
                env=fast_compile_env())
     assert out.returncode == 0, out.stderr[-3000:]
     summary = json.loads(out.stdout[out.stdout.index("{"):out.stdout.rindex("}") + 1])
@@ -37,9 +38,9 @@ def test_sacflow_franka_pick_runs(tmp_path):
 def test_hgdagger_franka_pick_runs(tmp_path):
     # 500 gradient steps per fit instead of the default 4000 (the fits of the 5-network novice were most of this
     # test's time); the robot-step budget and what is asserted are unchanged. The loop steps its robot in lock-step
-    # and sleeps through the pacing (5 ms a step at --speed=20, resets): --speed=100 (the test alone on the 2-core
-    # VM, three pairs: 24.7 / 25.0 / 24.5 -> 22.8 / 24.8 / 16.6 s wall, the same CPU).
-    out = _run("hgdagger_franka_pick.py", "--speed=100", "--total_steps=2000", "--bc_steps=500", "--refit_steps=500",
+    # and sleeps through the pacing (5 ms a step at --speed=20, resets): unpaced, --speed=inf (the script alone on the
+    # 2-core VM: 19.7 s wall at --speed=100, 16.0 s unpaced; 24.5-25.0 s at 20 before).
+    out = _run("hgdagger_franka_pick.py", "--speed=inf", "--total_steps=2000", "--bc_steps=500", "--refit_steps=500",
                f"--logdir={tmp_path}")
     assert out.returncode == 0, out.stderr[-3000:]
     summary = json.load(open(tmp_path / "summary.json"))
