@@ -75,16 +75,14 @@ class StepOut(NamedTuple):
 class StepInterrupted(Exception):
     """Raised by ``Task.step`` when the step could not be completed (e.g. a robot was lost, and the task
     waited until it or another robot answered again): the step produced no transition, every env was
-    reset, and ``obs`` / ``critic_obs`` are the observations the next step starts from. ``stopped``: the envs
-    whose robot refused the policy's command on a safety limit (a protective stop), when that is all that
-    interrupted the step (empty when a robot was lost)."""
+    reset, and ``obs`` / ``critic_obs`` are the observations the next step starts from."""
 
-    def __init__(self, reason: str, obs: np.ndarray, critic_obs: np.ndarray, stopped: tuple[int, ...] = ()):
+    def __init__(self, reason: str, obs: np.ndarray, critic_obs: np.ndarray):
         super().__init__(reason)
-        self.obs, self.critic_obs, self.stopped = obs, critic_obs, tuple(stopped)
+        self.obs, self.critic_obs = obs, critic_obs
 
     def __reduce__(self) -> tuple:  # pickled whole: an evaluation process raises it to the trainer
-        return type(self), (str(self), self.obs, self.critic_obs, self.stopped)
+        return type(self), (str(self), self.obs, self.critic_obs)
 
 
 def _nothing() -> None:

@@ -45,7 +45,10 @@ Robots step concurrently (one thread each; a step blocks for a control period). 
 does not answer, or a step or reset fails) interrupts the step (``tasks.base.StepInterrupted``: no
 transition, every env reset): the task first waits, calling ``keepalive`` and retrying every ``retry_s``,
 until the robot's server or another free robot of the inventory answers and resets (the robot
-*rejoins*). ``losses`` / ``rejoins`` count this.
+*rejoins*). ``losses`` / ``rejoins`` count this. A protective stop (the robot refused the policy's command on a
+safety limit) interrupts the step the same way, unless ``stop_ends_episode`` is set (the evaluations set it,
+``training.evaluation.run_episodes``): then it ends that robot's episode only, truncated without success and marked
+in ``extras["protective_stop"]``, and the other robots' episodes go on.
 """
 
 from __future__ import annotations
@@ -65,6 +68,7 @@ from unilab_jax.robots.interface import (
     RobotDisconnected,
     RobotError,
     RobotSpec,
+    Step,
     is_protective_stop,
 )
 from unilab_jax.robots.inventory import check_address, client_keys, compatible
@@ -178,6 +182,7 @@ class RobotTask(base.Task):
         self.task_name = task
         self.losses = 0
         self.rejoins = 0
+        self.stop_ends_episode = False  # a protective stop ends that robot's episode instead of interrupting the step
         self.robots: list[Robot] = []
         self.slots: list[int] = []  # each env's place in the inventory (its identity)
         try:
@@ -382,12 +387,17 @@ class RobotTask(base.Task):
             a[:, 3:6] = 0.0
         got = self._map(lambda i, ai: self.robots[i].step(ai), list(a))
         lost = {i for i, g in enumerate(got) if isinstance(g, RobotError)}
+        stopped = np.zeros(self.num_envs, bool)
+        if lost and self.stop_ends_episode and all(is_protective_stop(got[i]) for i in lost):
+            for i in lost:  # the episode ends where the robot stopped: no success, and reset below like any end
+                got[i] = Step(self._last[i], 0.0, False, True, {"success": False, "late": False})
+                stopped[i] = True
+            lost = set()
         if lost:  # no transition for anyone: every env starts again once the lost robots are back
             reason = "; ".join(f"{self.config.robots[self.slots[i]] if self.config.robots else i}: "
                                f"{type(got[i]).__name__}: {got[i]}" for i in sorted(lost))
-            stopped = tuple(sorted(lost)) if all(is_protective_stop(got[i]) for i in lost) else ()
             self._reset_all(lost)
-            raise base.StepInterrupted(reason, *self._observe_all(), stopped=stopped)
+            raise base.StepInterrupted(reason, *self._observe_all())
         self.steps += 1
         self._late += np.array([bool(g.info["late"]) for g in got])
         reward = np.array([g.reward for g in got], np.float32)
@@ -398,6 +408,8 @@ class RobotTask(base.Task):
         extras = {"source": source, "intervention_rate": np.zeros(self.num_envs, np.float32),
                   "interventions": np.zeros(self.num_envs, np.float32),
                   "late_fraction": (self._late / self.steps).astype(np.float32)}
+        if self.stop_ends_episode:
+            extras["protective_stop"] = stopped
         if self.operators or self.config.lock_rotation:
             extras["action"] = a
         for i, op in enumerate(self.operators):

@@ -118,22 +118,31 @@ def test_a_failed_step_is_interrupted_and_a_failed_reset_costs_no_transition():
         task.close()
 
 
-def test_a_protective_stop_names_its_env_and_a_lost_robot_none():
-    """StepInterrupted.stopped: the envs whose robot stopped itself on a safety limit, when nothing else interrupted
-    the step (an evaluation ends its episodes there as failed; a lost robot's episodes start over)."""
+def test_a_protective_stop_ends_only_its_robot_s_episode_while_evaluating():
+    """``stop_ends_episode`` (run_episodes sets it): a protective stop truncates that robot's episode (no success,
+    reward 0, marked in ``extras``) and the others go on; a stop beside a lost robot, an operator's estop, or any stop
+    in training (the flag unset) interrupts the step for every env."""
     protective = RobotEstopped("emergency stop engaged (protective stop: contact force 1285 N > 1000): call reset()")
     task = tasks.make("robot_pick_place", 2, seed=0, overrides={"episode_length": 5})
     try:
         task.reset()
         zero = np.zeros((2, 7), np.float32)
-        for errors, stopped in (({1: protective}, (1,)),
-                                ({0: protective, 1: RobotDisconnected("lost")}, ()),
-                                ({0: RobotEstopped("emergency stop engaged: call clear_estop() or reset()")}, ())):
+        task.stop_ends_episode = True
+        task.step(zero)
+        _fail_once(task.robots[1], "step", protective)
+        out = task.step(zero)
+        assert out.extras["protective_stop"].tolist() == [False, True] and out.truncated.tolist() == [False, True]
+        assert out.reward[1] == 0.0 and not out.terminated.any() and task.steps.tolist() == [2, 0]
+        for errors in ({0: protective, 1: RobotDisconnected("lost")},
+                       {0: RobotEstopped("emergency stop engaged: call clear_estop() or reset()")}):
             for i, error in errors.items():
                 _fail_once(task.robots[i], "step", error)
-            with pytest.raises(StepInterrupted) as e:
+            with pytest.raises(StepInterrupted):
                 task.step(zero)
-            assert e.value.stopped == stopped, str(e.value)
+        task.stop_ends_episode = False
+        _fail_once(task.robots[0], "step", protective)
+        with pytest.raises(StepInterrupted, match="protective stop"):
+            task.step(zero)
     finally:
         task.close()
 

@@ -116,9 +116,9 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     most ``max_steps`` control steps), rendering env 0 before every step of its episode when ``render`` is
     ``(width, height)``. Returns (frames [T, H, W, 3] uint8, T = env 0's steps, empty without ``render``;
     stats: ``return``/``return_std``/``episode_length`` over the ``episodes`` (envs), ``success_rate`` on tasks
-    whose termination is success, ``protective_stops`` (robots that stopped on a safety limit: every episode
-    ends at that step, the stopped ones failed) and ``restarts`` (episodes started over after a robot was lost)
-    where there were any, the ``LOGGED`` entries of the task's own metric where it has one
+    whose termination is success, ``protective_stops`` (episodes a robot ended by stopping on a safety limit: they
+    failed, the others went on) and ``restarts`` (episodes started over after a robot was lost) where there were
+    any, the ``LOGGED`` entries of the task's own metric where it has one
     (``task.eval_tracker()``, e.g. ``g1_track``'s clip completion), else the walking metric on locomotion tasks).
     The trainer's evaluations run it too; ``stop`` set before the episodes end raises :class:`StopRequested`."""
     from tasks.base import StepInterrupted
@@ -133,6 +133,9 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     step = tracker.step if tracker is not None else task.step
     renderer = SceneRenderer(task, *render) if render is not None else None
     restarts = protective_stops = 0
+    ends_on_stop = getattr(task, "stop_ends_episode", None)
+    if ends_on_stop is not None:  # a robot task: while evaluating, a protective stop ends that episode, failed
+        task.stop_ends_episode = True
     try:
         obs, _ = task.reset()
         ret, length = np.zeros(m), np.zeros(m, dtype=np.int64)
@@ -148,17 +151,16 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
             try:
                 out = step(np.asarray(act(obs), np.float32))
             except StepInterrupted as e:
-                if e.stopped:  # the robots refused the policy's commands: those episodes failed there, and the
-                    protective_stops = len(e.stopped)  # others end with them (the task reset every env)
-                    break
                 # A robot task lost a robot: every env was reset, so the episodes start over (a task with its own
                 # tracker keeps state across steps: its evaluation cannot restart).
                 restarts += 1
                 if tracker is not None or restarts > MAX_EVAL_RESTARTS:
                     raise
-                obs, t = e.obs, 0
+                obs, t, protective_stops = e.obs, 0, 0
                 ret[:], length[:], alive[:], terminated[:], frames = 0.0, 0, True, False, []
                 continue
+            if out.extras is not None and "protective_stop" in out.extras:
+                protective_stops += int(np.sum(alive & out.extras["protective_stop"]))
             ret += np.where(alive, out.reward, 0.0)
             length += alive
             terminated |= alive & out.terminated
@@ -169,6 +171,8 @@ def run_episodes(task: Any, act: Callable[[np.ndarray], np.ndarray], *, max_step
     finally:
         if renderer is not None:
             renderer.close()
+        if ends_on_stop is not None:
+            task.stop_ends_episode = ends_on_stop
     stats = {"return": float(ret.mean()), "return_std": float(ret.std()), "episode_length": float(length.mean()),
              "episodes": float(m)}
     if restarts:
@@ -377,7 +381,7 @@ class AsyncEvaluator:
     evaluation slower than ``--eval_every`` would otherwise queue without bound and hold the end of
     the run for minutes); ``skipped`` counts the replaced ones. ``close(cancel=True)`` (an interrupted
     run) drops the waiting one. An evaluation that robot tasks interrupt more often than ``run_episodes``
-    starts over (lost robots; a protective stop ends its episodes as failed) is dropped with a warning
+    starts over (lost robots; a protective stop ends only its robot's episode) is dropped with a warning
     (``interrupted`` counts them): it ends no run, nor does an evaluation process that died (``lost`` counts
     what it took). ``in_process``: the episodes run in an :class:`EvaluationProcess` (the thread only waits).
     """
