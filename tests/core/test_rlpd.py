@@ -21,25 +21,28 @@ def test_subset_min_hand_computed(backend):
     xp = _xp(backend)
     # 4 members, 3 samples; noise picks members 2 and 0 (the two smallest u)
     u = xp.asarray(np.array([0.30, 0.91, 0.05, 0.47], np.float32))
-    mask = np.asarray(rlpd.subset_mask(u, 2))
-    np.testing.assert_array_equal(mask, [True, False, True, False])
-    q = xp.asarray(np.array([[1.0, 5.0, -2.0],
-                             [0.0, 0.0, -9.0],   # smallest everywhere, but not in the subset
-                             [3.0, 4.0, -1.0],
-                             [-7.0, 6.0, 2.0]], np.float32))
-    np.testing.assert_allclose(np.asarray(rlpd.ensemble_subset_min(q, rlpd.subset_mask(u, 2))), [1.0, 4.0, -2.0])
-    # k = 1: member 2 alone; k = E: the plain min over the ensemble
-    np.testing.assert_allclose(np.asarray(rlpd.ensemble_subset_min(q, rlpd.subset_mask(u, 1))), [3.0, 4.0, -1.0])
-    np.testing.assert_allclose(np.asarray(rlpd.ensemble_subset_min(q, rlpd.subset_mask(u, 4))), [-7.0, 0.0, -9.0])
+    np.testing.assert_array_equal(np.asarray(rlpd.subset_indices(u, 2)), [2, 0])
+    # an ensemble of 4 one-weight "critics" whose values are their weight times x: [E, B]
+    ensemble = {"w": xp.asarray(np.array([[[1.0]], [[0.0]], [[3.0]], [[-7.0]]], np.float32))}
+    x = xp.asarray(np.array([[1.0, 2.0, -1.0]], np.float32))  # [1, B]
+
+    def subset_min(k):
+        sub = rlpd.ensemble_members(ensemble, rlpd.subset_indices(u, k))
+        return np.asarray(xp.min(sub["w"][:, 0, :] * x, axis=0))  # [k, 1] x [1, B] -> min over k: [B]
+
+    # members 2, 0: q rows [3, 6, -3] and [1, 2, -1]; member 3 (-7 x) would be the smallest where x > 0
+    np.testing.assert_allclose(subset_min(2), [1.0, 2.0, -3.0])
+    np.testing.assert_allclose(subset_min(1), [3.0, 6.0, -3.0])  # member 2 alone
+    np.testing.assert_allclose(subset_min(4), [-7.0, -14.0, -3.0])  # k = E: the plain min over the ensemble
 
 
 def test_subset_is_uniform_over_pairs():
     rng = np.random.default_rng(0)
     counts = np.zeros(10)
     for _ in range(2000):
-        mask = rlpd.subset_mask(rng.random(10).astype(np.float32), 2)
-        assert mask.sum() == 2
-        counts += mask
+        members = rlpd.subset_indices(rng.random(10).astype(np.float32), 2)
+        assert len(set(members.tolist())) == 2
+        counts[members] += 1
     # each member in 2/10 of the subsets: 400 of 2000 (binomial std ~18)
     assert np.all(np.abs(counts - 400) < 80), counts
 

@@ -1,7 +1,8 @@
 """RLPD kernels (Ball et al., "Efficient Online Reinforcement Learning with Offline Data", ICML 2023).
 
 * The critic ensemble's target takes the minimum over a random subset of its ``E`` members
-  (``subset_mask`` + ``ensemble_subset_min``; the subset is redrawn every gradient step).
+  (``subset_indices`` + ``ensemble_members``: only the subset's members are evaluated; redrawn every gradient
+  step).
 * Critic loss: the mean over members and samples of the squared error to the shared target.
 * Symmetric sampling: every minibatch is half online data, half prior data (``symmetric_split``,
   ``compose``).
@@ -17,18 +18,17 @@ from typing import Any
 from unilab_jax import xp as shim
 
 
-def subset_mask(u: Any, k: int) -> Any:
-    """``[E]`` bool: the ``k`` members whose noise ``u`` ``[E]`` is smallest (a uniformly random
-    ``k``-subset for i.i.d. continuous ``u``; ranks by counting, so every backend agrees)."""
+def subset_indices(u: Any, k: int) -> Any:
+    """``[k]`` int: the members whose noise ``u`` ``[E]`` is smallest, smallest first (a uniformly random
+    ``k``-subset for i.i.d. continuous ``u``)."""
     xp = shim.namespace(u)
-    rank = xp.sum(xp.astype(u[None, :] < u[:, None], xp.int32), axis=1)  # members below each one
-    return rank < k
+    return xp.argsort(u)[:k]
 
 
-def ensemble_subset_min(q: Any, mask: Any) -> Any:
-    """``min`` over the members selected by ``mask`` ``[E]`` of ``q`` ``[E, B]`` -> ``[B]``."""
-    xp = shim.namespace(q)
-    return xp.min(xp.where(mask[:, None], q, xp.full(q.shape, xp.inf, dtype=q.dtype)), axis=0)
+def ensemble_members(ensemble: Any, members: Any) -> Any:
+    """The sub-ensemble of ``members`` ``[k]`` (``subset_indices``) of an ensemble whose leaves stack their members
+    on the leading axis (``[E, ...]`` -> ``[k, ...]``): the target evaluates only the ``k`` it takes the min of."""
+    return shim.tree_map(lambda leaf: leaf[members], ensemble)
 
 
 def ensemble_critic_loss(q: Any, target: Any) -> Any:

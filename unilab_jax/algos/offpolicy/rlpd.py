@@ -125,8 +125,8 @@ def critic_target(target_critic: Any, actor: Any, log_alpha: Any, norms: Norms, 
     ``sample(actor, obs_norm, next_obs, eps_next)`` (SAC's tanh-Gaussian; RLPD Flow: the flow's chain)."""
     xp = shim.namespace(mb["reward"])
     next_action, next_log_prob = sample(actor, norms.obs, mb["next_obs"], eps_next)
-    next_q = scalar_q(target_critic, critic_input(norms.critic, mb["next_critic_obs"], next_action))
-    q_min = rlpd.ensemble_subset_min(next_q, rlpd.subset_mask(u, config.subset_size))
+    subset = rlpd.ensemble_members(target_critic, rlpd.subset_indices(u, config.subset_size))
+    q_min = xp.min(scalar_q(subset, critic_input(norms.critic, mb["next_critic_obs"], next_action)), axis=0)
     return sac_core.sac_target(mb["reward"] / norms.reward_scale, discounts(mb, config.gamma), q_min, q_min,
                                next_log_prob, xp.exp(log_alpha))
 
