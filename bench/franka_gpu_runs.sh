@@ -5,7 +5,7 @@
 # (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 360 in a 10-minute call: 400 ran past 560 s)
 # JOB = rlpd_peg_sN | rlpdflow_peg_sN | rlpdflow_peg_images_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
 #       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN | rlpd_pick_images_pair_sN
-#       | rlpd_peg_images_rt_sN; SPEED (default 10) sets --speed, TOTAL (default 36000: 60 robot-minutes at 10 Hz)
+#       | rlpd_peg_images_rt_sN | rlpd_pick_images_dense_sN | rlpd_pick_images_dense_pair_sN; SPEED (default 10) sets --speed, TOTAL (default 36000: 60 robot-minutes at 10 Hz)
 #       --total_steps (rlpdflow_peg's update is ~2x RLPD's on the CPU: TOTAL=18000 compares the two at 30 robot-minutes
 #       inside one call).
 # _pair: 6 Franka + 6 UR5e robots alternating in the inventory (both kinds train and evaluate), one policy; its
@@ -13,6 +13,11 @@
 # rlpdflow_peg: rlpd_peg's command (demonstrations, prior data, critics, flags) with SAC Flow's actor (--algo=rlpd_flow),
 # the issue-32 comparison of the two actors at the same robot time; rlpdflow_peg_images the same from images
 # (rlpd_peg_images's command with SAC Flow's actor).
+# _dense: image RLPD pick-and-place with the task's potential-based shaping (--dense_reward, as peg insertion's runs)
+# at utd 10, the actor every 10th gradient step (one actor step per env step, as the sparse pick's 20 / 20): the
+# sparse pick learned only from 25-40 robot-minutes on state, and its utd 20 made the image runs learner-bound.
+# EXTRA: flags added to every job's training command (--keep_replay in a first call, --keep_replay --resume in a second
+# on the same warm machine with RUNS on /tmp).
 # _rt: image RLPD peg insertion in real time (--speed=1, whatever SPEED says) with --utd_mode=free (the robots never
 # wait for the learner: under the default hold the workers pause whenever the learner is behind the ratio, and a
 # paused worker's robot holds its command: 0.54 of steps late at 086aebf); episode/late_fraction in the metrics is
@@ -27,6 +32,7 @@ F="--robots=$R --num_workers=8 --eval_envs=4 --eval_every=3000 --speed=${SPEED:-
 P="--dense_reward --task_config=lock_rotation=true --config init_alpha=0.01 --config utd=10"
 S="--observation=state"
 RLPD_PEG="experiments/rlpd_franka_peg.py $F $P $S --config actor_every=2"
+D="--dense_reward --config utd=10 --config actor_every=10"
 I="--task_config=image_size=64 --config encoder_channels=(32,32,32,32) --config encoder_strides=(2,1,1,1) --config feature_dim=50"
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
 job() {
@@ -45,12 +51,14 @@ job() {
     rlpd_pick_images_asym) a="experiments/rlpd_franka_pick.py $F $I --asymmetric --config actor_every=20";;
     rlpd_peg_images_rt) a="experiments/rlpd_franka_peg.py ${F/--speed=${SPEED:-10}/--speed=1} $P $I --config actor_every=2 --utd_mode=free";;
     rlpd_pick_images_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I --config actor_every=20";;
+    rlpd_pick_images_dense) a="experiments/rlpd_franka_pick.py $F $I $D";;
+    rlpd_pick_images_dense_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I $D";;
   esac
   local d=${RUNS:-runs}/$name
-  timeout ${JOB_TIMEOUT:-540} python3 $a --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log
+  timeout ${JOB_TIMEOUT:-540} python3 $a ${EXTRA:-} --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log
   python3 bench/compact_metrics.py $d/metrics.jsonl $OUT/$name.jsonl.gz >> $OUT/$name.log 2>&1
   cp $d/summary.json $OUT/${name}_summary.json 2>/dev/null
-  local dr=""; case $kind in *peg*) dr="--task_config=dense_reward=true";; esac
+  local dr=""; case $kind in *peg*|*dense*) dr="--task_config=dense_reward=true";; esac
   local arms=franka; case $kind in *_pair) arms="franka ur5e";; esac
   for c in $(ls $d/checkpoints 2>/dev/null | sort -n | tail -3); do
     for arm in $arms; do  # in-process robots of that arm; reports of another arm than the Franka's named _<arm>

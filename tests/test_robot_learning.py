@@ -32,6 +32,7 @@ def test_reports_become_records_and_a_rerun_replaces_its_own(tmp_path):
     assert (img["observation"], img["asymmetric"], img["seed"], img["success"]) == ("images", False, 0, 0.5)
     assert abs(img["robot_minutes"] - 3003 / 600) < 1e-9 and img["episodes"] == 40
     assert recs[("rlpd_peg_images_asym_s2", 6000)]["asymmetric"] is True
+    assert img["reward"] == "dense"  # every peg insertion job trains with the shaped reward
     state = recs[("rlpd_peg_s1", 1200)]
     assert state["observation"] == "state" and state["robot_minutes"] == 1.0  # 1200 steps at 20 Hz
     _report(runs, "rlpd_peg_images_s0_eval40_3003.json", 0.9)
@@ -58,3 +59,12 @@ def test_a_pair_jobs_reports_per_arm_are_records_of_their_arm(tmp_path):
                    capture_output=True)
     recs = json.loads(out.read_text())
     assert sorted((r["arm"], r["success"], r["seed"]) for r in recs) == [("franka", 0.5, 0), ("ur5e", 0.25, 0)]
+    assert {r["reward"] for r in recs} == {"success"}
+
+
+def test_the_shaped_pick_jobs_are_dense_the_others_success_only():
+    sys.path.insert(0, os.path.dirname(SCRIPT))
+    from robot_learning import reward_of
+    assert [reward_of(j) for j in ("rlpd_pick_images_dense_s1", "rlpd_pick_images_dense_pair_s0",
+                                   "rlpdflow_peg_images_s2", "rlpd_pick_s0", "sacflow_pick_s1")] == \
+        ["dense", "dense", "dense", "success", "success"]
