@@ -5,7 +5,8 @@
 # (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 360 in a 10-minute call: 400 ran past 560 s)
 # JOB = rlpd_peg_sN | rlpdflow_peg_sN | rlpdflow_peg_images_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
 #       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN | rlpd_pick_images_pair_sN
-#       | rlpd_peg_images_rt_sN | rlpd_pick_images_dense_sN | rlpd_pick_images_dense_pair_sN; SPEED (default 10) sets --speed, TOTAL (default 36000: 60 robot-minutes at 10 Hz)
+#       | rlpd_peg_images_rt_sN | rlpd_pick_images_dense_sN | rlpd_pick_images_dense_pair_sN
+#       | rlpd_pick_images_gate_sN | rlpd_pick_images_gate_pair_sN; SPEED (default 10) sets --speed, TOTAL (default 36000: 60 robot-minutes at 10 Hz)
 #       --total_steps (rlpdflow_peg's update is ~2x RLPD's on the CPU: TOTAL=18000 compares the two at 30 robot-minutes
 #       inside one call).
 # _pair: 6 Franka + 6 UR5e robots alternating in the inventory (both kinds train and evaluate), one policy; its
@@ -16,6 +17,11 @@
 # _dense: image RLPD pick-and-place with the task's potential-based shaping (--dense_reward, as peg insertion's runs)
 # at utd 10, the actor every 10th gradient step (one actor step per env step, as the sparse pick's 20 / 20): the
 # sparse pick learned only from 25-40 robot-minutes on state, and its utd 20 made the image runs learner-bound.
+# _gate: _dense with interventions (HIL-SERL's recipe: RLPD on the robot's data with an operator's corrections): the
+# scripted expert, acting as a human operator that reads the object pose, takes a robot over for 20 steps when its
+# tcp leaves the safe box, it drops the cube or its return stalls for 15 steps (--task_config=operator=gate); the
+# policy still sees only the cameras and proprioception, and the evaluations run without the operator.
+# EVALS (default 3): how many of a job's last checkpoints get the 40-episode evaluations.
 # EXTRA: flags added to every job's training command (--keep_replay in a first call, --keep_replay --resume in a second
 # on the same warm machine with RUNS on /tmp).
 # _rt: image RLPD peg insertion in real time (--speed=1, whatever SPEED says) with --utd_mode=free (the robots never
@@ -53,14 +59,16 @@ job() {
     rlpd_pick_images_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I --config actor_every=20";;
     rlpd_pick_images_dense) a="experiments/rlpd_franka_pick.py $F $I $D";;
     rlpd_pick_images_dense_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I $D";;
+    rlpd_pick_images_gate) a="experiments/rlpd_franka_pick.py $F $I $D --task_config=operator=gate";;
+    rlpd_pick_images_gate_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I $D --task_config=operator=gate";;
   esac
   local d=${RUNS:-runs}/$name
   timeout ${JOB_TIMEOUT:-540} python3 $a ${EXTRA:-} --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log
   python3 bench/compact_metrics.py $d/metrics.jsonl $OUT/$name.jsonl.gz >> $OUT/$name.log 2>&1
   cp $d/summary.json $OUT/${name}_summary.json 2>/dev/null
-  local dr=""; case $kind in *peg*|*dense*) dr="--task_config=dense_reward=true";; esac
+  local dr=""; case $kind in *peg*|*dense*|*gate*) dr="--task_config=dense_reward=true";; esac
   local arms=franka; case $kind in *_pair) arms="franka ur5e";; esac
-  for c in $(ls $d/checkpoints 2>/dev/null | sort -n | tail -3); do
+  for c in $(ls $d/checkpoints 2>/dev/null | sort -n | tail -${EVALS:-3}); do
     for arm in $arms; do  # in-process robots of that arm; reports of another arm than the Franka's named _<arm>
       local tag=""; [ $arm = franka ] || tag=_$arm
       JAX_PLATFORMS=cpu timeout 120 python3 -m unilab_jax.play --logdir=$d --checkpoint=$c --episodes=40 --seed=1 --task_config='robots=()' --task_config=arm=$arm $dr > $OUT/${name}${tag}_eval40_$c.json 2>> $OUT/$name.log &

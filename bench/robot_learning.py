@@ -8,10 +8,11 @@ name says ``ur5e``) becomes a record: ``arm``, ``task``, ``algo``,
 ``episodes`` and ``success`` (the success rate) from the report; ``observation`` (``images`` for the ``*_images*``
 jobs, else ``state``), ``asymmetric`` (``*_asym_*``: the critic also reads the privileged state) and ``seed``
 (``_sN``) from the job's name; ``reward`` (``dense``: the task's potential-based shaping, the peg insertion jobs and
-``*_dense*``; else ``success``: 1 on success only); ``env_steps``; ``robot_minutes`` = env steps / (control rate x
-60), the control rate being the report's ``fps``; an empty or unfinished report (an evaluation stopped by a
-deadline) is skipped with a message. A record replaces the file's record of the same job, arm and env step (a
-record without ``arm`` is the Franka's).
+``*_dense*`` and ``*_gate*``; else ``success``: 1 on success only), ``interventions`` (``*_gate*``: an operator
+corrected the training episodes; the evaluations run without it); ``env_steps``; ``robot_minutes`` = env steps /
+(control rate x 60), the control rate being the report's ``fps``; an empty or unfinished report (an evaluation
+stopped by a deadline) is skipped with a message. A record replaces the file's record of the same job, arm and env
+step (a record without ``arm`` is the Franka's).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ REPORT = re.compile(r"^(?P<job>.+_s(?P<seed>\d+))(?:_(?P<arm>ur5e))?_eval40_(?P<
 
 def reward_of(job: str) -> str:
     """``dense`` for the jobs of ``bench/franka_gpu_runs.sh`` that train with the shaped reward, else ``success``."""
-    return "dense" if "_peg" in job or "_dense" in job else "success"
+    return "dense" if "_peg" in job or "_dense" in job or "_gate" in job else "success"
 
 
 def records(folder: str, commit: str) -> list[dict]:
@@ -47,7 +48,7 @@ def records(folder: str, commit: str) -> list[dict]:
         job, step = m["job"], int(m["step"])
         out.append({"job": job, "arm": m["arm"] or "franka", "task": report["task"], "algo": report["algo"],
                     "observation": "images" if "_images" in job else "state", "asymmetric": "_asym_" in job,
-                    "reward": reward_of(job),
+                    "reward": reward_of(job), "interventions": "_gate" in job,
                     "seed": int(m["seed"]), "env_steps": step, "robot_minutes": step / (report["fps"] * 60.0),
                     "episodes": int(report["episodes"]), "success": report["success_rate"], "commit": commit})
     return out

@@ -59,12 +59,20 @@ def test_a_pair_jobs_reports_per_arm_are_records_of_their_arm(tmp_path):
                    capture_output=True)
     recs = json.loads(out.read_text())
     assert sorted((r["arm"], r["success"], r["seed"]) for r in recs) == [("franka", 0.5, 0), ("ur5e", 0.25, 0)]
-    assert {r["reward"] for r in recs} == {"success"}
+    assert {r["reward"] for r in recs} == {"success"} and not any(r["interventions"] for r in recs)
 
 
-def test_the_shaped_pick_jobs_are_dense_the_others_success_only():
-    sys.path.insert(0, os.path.dirname(SCRIPT))
-    from robot_learning import reward_of
-    assert [reward_of(j) for j in ("rlpd_pick_images_dense_s1", "rlpd_pick_images_dense_pair_s0",
-                                   "rlpdflow_peg_images_s2", "rlpd_pick_s0", "sacflow_pick_s1")] == \
-        ["dense", "dense", "dense", "success", "success"]
+def test_the_shaped_and_corrected_pick_jobs_say_so(tmp_path):
+    """``reward``: dense for peg insertion (every peg job trains shaped) and the ``_dense`` / ``_gate`` pick jobs;
+    ``interventions`` for the ``_gate`` jobs only."""
+    runs, out = tmp_path / "runs", tmp_path / "robot_learning.json"
+    runs.mkdir()
+    jobs = ("rlpd_pick_images_dense_s1", "rlpd_pick_images_gate_pair_s0", "rlpdflow_peg_images_s2", "rlpd_pick_s0",
+            "sacflow_pick_s1")
+    for job in jobs:
+        _report(runs, f"{job}_eval40_600.json", 0.5)
+    subprocess.run([sys.executable, SCRIPT, str(runs), "--out", str(out), "--commit", "abc"], check=True,
+                   capture_output=True)
+    recs = {r["job"]: (r["reward"], r["interventions"]) for r in json.loads(out.read_text())}
+    assert [recs[j] for j in jobs] == [("dense", False), ("dense", True), ("dense", False), ("success", False),
+                                       ("success", False)]
