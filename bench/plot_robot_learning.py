@@ -44,7 +44,7 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(TASKS), figsize=(10, 3.6), sharey=True)
+    fig, axes = plt.subplots(1, len(TASKS), figsize=(10, 5.2), sharey=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     drawn = 0
     for i, spec in enumerate(args.series):
@@ -69,7 +69,7 @@ def main() -> None:
         ax.set_title(f"Franka {title}")
         ax.set_xlabel("robot-minutes")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="center right")
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)  # below: the curves stay seen
         ax.set_xlim(left=0)
     axes[0].set_ylabel("success rate (4 episodes)")
     fig.tight_layout()

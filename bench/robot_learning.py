@@ -1,6 +1,7 @@
 """Robot-learning results (issue 32): one record per evaluation in a JSON file.
 
     python bench/robot_learning.py --out bench/results/h100/phase3/robot_learning.json --commit abc1234 DIR [DIR ...]
+        [--machine "2x H200 + 32 cores"]
 
 Each DIR holds ``bench/franka_gpu_runs.sh``'s outputs; every ``<job>[_<arm>]_eval40_<step>.json`` in it (``python -m
 unilab_jax.play``'s report on the checkpoint of env step ``<step>``, evaluated on ``arm``: ``franka`` unless the
@@ -12,7 +13,8 @@ jobs, else ``state``), ``asymmetric`` (``*_asym_*``: the critic also reads the p
 corrected the training episodes; the evaluations run without it); ``env_steps``; ``robot_minutes`` = env steps /
 (control rate x 60), the control rate being the report's ``fps``; an empty or unfinished report (an evaluation
 stopped by a deadline) is skipped with a message. A record replaces the file's record of the same job, arm and env
-step (a record without ``arm`` is the Franka's).
+step (a record without ``arm`` is the Franka's). ``--machine`` adds a ``machine`` field (records without one are the
+H100 + 16-core machine's).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ def reward_of(job: str) -> str:
     return "dense" if "_peg" in job or "_dense" in job or "_gate" in job else "success"
 
 
-def records(folder: str, commit: str) -> list[dict]:
+def records(folder: str, commit: str, machine: str = "") -> list[dict]:
     """The records of the evaluation reports in ``folder``."""
     out = []
     for path in sorted(glob.glob(os.path.join(folder, "*_eval40_*.json"))):
@@ -51,6 +53,8 @@ def records(folder: str, commit: str) -> list[dict]:
                     "reward": reward_of(job), "interventions": "_gate" in job,
                     "seed": int(m["seed"]), "env_steps": step, "robot_minutes": step / (report["fps"] * 60.0),
                     "episodes": int(report["episodes"]), "success": report["success_rate"], "commit": commit})
+        if machine:
+            out[-1]["machine"] = machine
     return out
 
 
@@ -66,8 +70,9 @@ def main() -> None:
     ap.add_argument("folders", nargs="+")
     ap.add_argument("--out", required=True)
     ap.add_argument("--commit", required=True)
+    ap.add_argument("--machine", default="", help="the GPU machine, when not the H100 + 16 cores")
     args = ap.parse_args()
-    new = [r for folder in args.folders for r in records(folder, args.commit)]
+    new = [r for folder in args.folders for r in records(folder, args.commit, args.machine)]
     if not new:
         print(f"no <job>_eval40_<step>.json report in {args.folders}", file=sys.stderr)
         sys.exit(2)

@@ -32,7 +32,7 @@ def test_reports_become_records_and_a_rerun_replaces_its_own(tmp_path):
     assert (img["observation"], img["asymmetric"], img["seed"], img["success"]) == ("images", False, 0, 0.5)
     assert abs(img["robot_minutes"] - 3003 / 600) < 1e-9 and img["episodes"] == 40
     assert recs[("rlpd_peg_images_asym_s2", 6000)]["asymmetric"] is True
-    assert img["reward"] == "dense"  # every peg insertion job trains with the shaped reward
+    assert img["reward"] == "dense" and "machine" not in img  # every peg job trains with the shaped reward
     state = recs[("rlpd_peg_s1", 1200)]
     assert state["observation"] == "state" and state["robot_minutes"] == 1.0  # 1200 steps at 20 Hz
     _report(runs, "rlpd_peg_images_s0_eval40_3003.json", 0.9)
@@ -71,8 +71,9 @@ def test_the_shaped_and_corrected_pick_jobs_say_so(tmp_path):
             "sacflow_pick_s1")
     for job in jobs:
         _report(runs, f"{job}_eval40_600.json", 0.5)
-    subprocess.run([sys.executable, SCRIPT, str(runs), "--out", str(out), "--commit", "abc"], check=True,
-                   capture_output=True)
+    subprocess.run([sys.executable, SCRIPT, str(runs), "--out", str(out), "--commit", "abc", "--machine", "2x H200"],
+                   check=True, capture_output=True)
     recs = {r["job"]: (r["reward"], r["interventions"]) for r in json.loads(out.read_text())}
+    assert {r["machine"] for r in json.loads(out.read_text())} == {"2x H200"}
     assert [recs[j] for j in jobs] == [("dense", False), ("dense", True), ("dense", False), ("success", False),
                                        ("success", False)]
