@@ -5,7 +5,7 @@
 # (a job takes JOB_TIMEOUT plus up to 120 s of evaluations: with setup, keep JOB_TIMEOUT <= 360 in a 10-minute call: 400 ran past 560 s)
 # JOB = rlpd_peg_sN | rlpdflow_peg_sN | rlpdflow_peg_images_sN | sac_peg_sN | rlpd_pick_sN | sac_pick_sN | sacflow_pick_sN | rlpd_peg_images_sN | rlpd_pick_images_sN
 #       | rlpd_peg_images_asym_sN | rlpd_pick_images_asym_sN | rlpd_pick_images_pair_sN
-#       | rlpd_peg_images_rt_sN | rlpd_pick_images_dense_sN | rlpd_pick_images_dense_pair_sN
+#       | rlpd_peg_images_rt_sN | rlpd_pick_images_dense_sN
 #       | rlpd_pick_images_gate_sN | rlpd_pick_images_gate_pair_sN; SPEED (default 10) sets --speed, TOTAL (default 36000: 60 robot-minutes at 10 Hz)
 #       --total_steps (rlpdflow_peg's update is ~2x RLPD's on the CPU: TOTAL=18000 compares the two at 30 robot-minutes
 #       inside one call).
@@ -58,7 +58,6 @@ job() {
     rlpd_peg_images_rt) a="experiments/rlpd_franka_peg.py ${F/--speed=${SPEED:-10}/--speed=1} $P $I --config actor_every=2 --utd_mode=free";;
     rlpd_pick_images_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I --config actor_every=20";;
     rlpd_pick_images_dense) a="experiments/rlpd_franka_pick.py $F $I $D";;
-    rlpd_pick_images_dense_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I $D";;
     rlpd_pick_images_gate) a="experiments/rlpd_franka_pick.py $F $I $D --task_config=operator=gate";;
     rlpd_pick_images_gate_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I $D --task_config=operator=gate";;
   esac
