@@ -39,6 +39,7 @@ P="--dense_reward --task_config=lock_rotation=true --config init_alpha=0.01 --co
 S="--observation=state"
 RLPD_PEG="experiments/rlpd_franka_peg.py $F $P $S --config actor_every=2"
 D="--dense_reward --config utd=10 --config actor_every=10"
+G="$D --task_config=operator=gate"
 I="--task_config=image_size=64 --config encoder_channels=(32,32,32,32) --config encoder_strides=(2,1,1,1) --config feature_dim=50"
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
 job() {
@@ -58,8 +59,8 @@ job() {
     rlpd_peg_images_rt) a="experiments/rlpd_franka_peg.py ${F/--speed=${SPEED:-10}/--speed=1} $P $I --config actor_every=2 --utd_mode=free";;
     rlpd_pick_images_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I --config actor_every=20";;
     rlpd_pick_images_dense) a="experiments/rlpd_franka_pick.py $F $I $D";;
-    rlpd_pick_images_gate) a="experiments/rlpd_franka_pick.py $F $I $D --task_config=operator=gate";;
-    rlpd_pick_images_gate_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I $D --task_config=operator=gate";;
+    rlpd_pick_images_gate) a="experiments/rlpd_franka_pick.py $F $I $G";;
+    rlpd_pick_images_gate_pair) a="experiments/rlpd_franka_pick.py ${F/--robots=$R/--robots=$RP} $I $G";;
   esac
   local d=${RUNS:-runs}/$name
   timeout ${JOB_TIMEOUT:-540} python3 $a ${EXTRA:-} --seed=$s --logdir=$d > $OUT/$name.log 2>&1; echo "$name exit $?" >> $OUT/$name.log
