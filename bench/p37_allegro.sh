@@ -16,14 +16,18 @@
 # (default -0.3; the recipes set it to 0): from the grasp cache the teachers drop objects as early as a scripted
 # gait that pushes them off the palm, docs/RESULTS.md); held (hold, the episodes starting from the grasps that keep
 # their object through a still episode: grasp_cache=held, tasks/allegro_grasps.py); custom (EXTRA's flags).
-# EXTRA is appended to every setting.
+# EXTRA is appended to every setting. NAME (default SETTING) names the runs and their records: a run resumed under
+# another setting keeps its NAME (the two-step schedule: NAME=held_relaxed SETTING=held for the first call, then
+# NAME=held_relaxed SETTING=held FALL=-10 LINVEL=0 RESUME=1 with a larger TEACHER_STEPS).
 set -u
 OUT=${OUT:-/tmp/p37}; mkdir -p "$OUT/runs"
-ROBOTS="wonik_allegro" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
-head -3 "$OUT/setup.txt"
+if [ "${SETUP:-1}" = 1 ]; then  # SETUP=0: set up already (bench/lane_commands.sh)
+  ROBOTS="wonik_allegro" source bench/device_setup.sh > "$OUT/setup.txt" 2>&1 || { cat "$OUT/setup.txt"; exit 1; }
+  head -3 "$OUT/setup.txt"
+fi
 # side by side on one GPU: each process allocates what it uses, not 75% of the memory (three would not fit)
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
-SEEDS=${SEEDS:-"0 1 2"}; ROLE=${ROLE:-hora}; SETTING=${SETTING:-base}; MAXS=${MAXS:-450}
+SEEDS=${SEEDS:-"0 1 2"}; ROLE=${ROLE:-hora}; SETTING=${SETTING:-base}; NAME=${NAME:-$SETTING}; MAXS=${MAXS:-450}
 workers=$(( ($(nproc) - 1) / $(echo $SEEDS | wc -w) ))  # 16 cores, 3 seeds: 5 workers each
 fixed="--config lr_schedule=fixed --config learning_rate=${LR:-3e-4}"
 std="--config final_std=${STD:-0.3} --config schedule_steps=${SCHED:-4000000}"
@@ -47,14 +51,14 @@ if [ "$ROLE" = hora ]; then
 else
   cmd="python3 experiments/ppo_allegro_rotate.py --total_steps=${TOTAL_STEPS:-5000000} $common"
 fi
-echo "$ROLE $SETTING seeds $SEEDS, $workers workers each: $cmd"
+echo "$ROLE $NAME ($SETTING) seeds $SEEDS, $workers workers each: $cmd"
 dirs() {  # the logdirs of seed $1's runs (HORA: teacher and student; PPO: the run)
-  local d=runs/p37_${ROLE}_${SETTING}_s$1
+  local d=runs/p37_${ROLE}_${NAME}_s$1
   if [ "$ROLE" = hora ]; then echo $d/teacher $d/student; else echo $d; fi
 }
 if [ "${EVAL_ONLY:-0}" != 1 ]; then
   for s in $SEEDS; do
-    timeout -s TERM "$MAXS" $cmd --seed=$s --logdir=runs/p37_${ROLE}_${SETTING}_s$s > "$OUT/runs/${ROLE}_${SETTING}_s$s.log" 2>&1 &
+    timeout -s TERM "$MAXS" $cmd --seed=$s --logdir=runs/p37_${ROLE}_${NAME}_s$s > "$OUT/runs/${ROLE}_${NAME}_s$s.log" 2>&1 &
   done
   wait
 fi
@@ -72,11 +76,11 @@ if [ "${FINAL_EVAL:-0}" -gt 0 ]; then
   wait
 fi
 for s in $SEEDS; do
-  d=runs/p37_${ROLE}_${SETTING}_s$s; runs=""
+  d=runs/p37_${ROLE}_${NAME}_s$s; runs=""
   for role in teacher student; do [ -f $d/$role/summary.json ] && runs="$runs --run $role=$d/$role"; done
   [ -f $d/summary.json ] && runs="--run ppo=$d"
-  tail -3 "$OUT/runs/${ROLE}_${SETTING}_s$s.log" 2>/dev/null
-  python3 bench/allegro_results.py --out "$OUT/allegro.json" --setting "$SETTING" --seed "$s" \
+  tail -3 "$OUT/runs/${ROLE}_${NAME}_s$s.log" 2>/dev/null
+  python3 bench/allegro_results.py --out "$OUT/allegro.json" --setting "$NAME" --seed "$s" \
     --commit "${COMMIT:-unknown}" --command "$cmd" $runs
   mkdir -p "$OUT/runs/s$s" && (cd $d && find . \( -name metrics.jsonl -o -name summary.json -o -name hora_summary.json \
     -o -name 'final_eval_*.json' \) -exec cp --parents {} "$OUT/runs/s$s" \;)
