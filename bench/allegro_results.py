@@ -125,7 +125,7 @@ def plot(records: list[dict], path: str) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax_rate, ax_ttf) = plt.subplots(1, 2, figsize=(10, 3.6))
+    fig, (ax_rate, ax_ttf) = plt.subplots(1, 2, figsize=(10, 4.6))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     groups = list(dict.fromkeys((r["setting"], r["role"]) for r in records))
     drawn = 0
@@ -147,9 +147,12 @@ def plot(records: list[dict], path: str) -> int:
         ax.grid(alpha=0.3)
         ax.set_xlim(left=0)
         ax.set_ylim(bottom=0)
-    ax_rate.legend(fontsize=8)
+    # below the panels, where it covers no curve
+    handles, labels = ax_rate.get_legend_handles_labels()
+    rows = -(-len(labels) // 4)
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle("Allegro in-hand rotation: evaluations per seed", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05 * rows, 1, 1))
     fig.savefig(path, dpi=110)
     return drawn
 

@@ -5,13 +5,15 @@
 # bench/lanes.sh runs bench/time_to_target.py items; this one runs whole scripts (bench/p33_terrain.sh,
 # bench/p37_allegro.sh), e.g. three G1 rough seeds and the Allegro teachers:
 #   ROBOTS="unitree_g1 wonik_allegro" bash bench/lane_commands.sh \
-#     'CONFIG=g1_rough_fastsac SEEDS=0 MAXS=470 bash bench/p33_terrain.sh' ... 'ROLE=hora SETTING=held bash bench/p37_allegro.sh'
+#     'CONFIG=g1_rough_fastsac SEEDS=0 MAXS=470 bash bench/p33_terrain.sh' ... \
+#     'ROLE=hora SETTING=held bash bench/p37_allegro.sh'
 # Under $OUT: machine.txt and lanes.tgz (lane_<i>/: the lane's own OUT, and lane_<i>.log, its output).
 set -u
 OUT=${OUT:-/tmp/lane_commands}; mkdir -p "$OUT"; W=$(mktemp -d); CORES=${CORES:-16}
 [ "$#" -ge 1 ] || { echo "lane_commands: give one command per lane"; exit 2; }
 source bench/device_setup.sh > "$OUT/machine.txt" 2>&1 || { cat "$OUT/machine.txt"; exit 1; }
-{ lscpu | grep -E "Model name|^CPU\(s\)"; nvidia-smi --query-gpu=name,memory.total --format=csv; } >> "$OUT/machine.txt" 2>&1
+{ lscpu | grep -E "Model name|^CPU\(s\)"; nvidia-smi --query-gpu=name,memory.total --format=csv; } \
+  >> "$OUT/machine.txt" 2>&1
 head -5 "$OUT/machine.txt"
 ngpu=$(nvidia-smi -L | wc -l)
 [ "$#" -le "$ngpu" ] || { echo "lane_commands: $# lanes, $ngpu GPUs"; exit 2; }

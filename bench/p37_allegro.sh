@@ -27,6 +27,9 @@ if [ "${SETUP:-1}" = 1 ]; then  # SETUP=0: set up already (bench/lane_commands.s
 fi
 # side by side on one GPU: each process allocates what it uses, not 75% of the memory (three would not fit)
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
+# the record's machine: this GPU's name, the host's GPU count and the cores this script may use (taskset)
+MACHINE=${MACHINE:-"$(nvidia-smi --query-gpu=name --format=csv,noheader | head -1) x$(nvidia-smi -L | wc -l) host: \
+1 GPU + $(nproc) cores"}
 SEEDS=${SEEDS:-"0 1 2"}; ROLE=${ROLE:-hora}; SETTING=${SETTING:-base}; NAME=${NAME:-$SETTING}; MAXS=${MAXS:-450}
 workers=$(( ($(nproc) - 1) / $(echo $SEEDS | wc -w) ))  # 16 cores, 3 seeds: 5 workers each
 fixed="--config lr_schedule=fixed --config learning_rate=${LR:-3e-4}"
@@ -58,7 +61,8 @@ dirs() {  # the logdirs of seed $1's runs (HORA: teacher and student; PPO: the r
 }
 if [ "${EVAL_ONLY:-0}" != 1 ]; then
   for s in $SEEDS; do
-    timeout -s TERM "$MAXS" $cmd --seed=$s --logdir=runs/p37_${ROLE}_${NAME}_s$s > "$OUT/runs/${ROLE}_${NAME}_s$s.log" 2>&1 &
+    timeout -s TERM "$MAXS" $cmd --seed=$s --logdir=runs/p37_${ROLE}_${NAME}_s$s \
+      > "$OUT/runs/${ROLE}_${NAME}_s$s.log" 2>&1 &
   done
   wait
 fi
@@ -81,7 +85,7 @@ for s in $SEEDS; do
   [ -f $d/summary.json ] && runs="--run ppo=$d"
   tail -3 "$OUT/runs/${ROLE}_${NAME}_s$s.log" 2>/dev/null
   python3 bench/allegro_results.py --out "$OUT/allegro.json" --setting "$NAME" --seed "$s" \
-    --commit "${COMMIT:-unknown}" --command "$cmd" $runs
+    --commit "${COMMIT:-unknown}" --machine "$MACHINE" --command "$cmd" $runs
   mkdir -p "$OUT/runs/s$s" && (cd $d && find . \( -name metrics.jsonl -o -name summary.json -o -name hora_summary.json \
     -o -name 'final_eval_*.json' \) -exec cp --parents {} "$OUT/runs/s$s" \;)
 done
