@@ -28,12 +28,12 @@ fi
 RUNS=${RUNS_DIR:-/tmp/time_to_target_runs}
 extra=(); for x in ${EXTRA:-}; do extra+=("--extra=$x"); done  # EXTRA: flags for the experiment, space-separated
 # The runtime's off-policy runs keep their replay across the RESUME=1 call (--keep_replay: the rings written at the
-# stop, copied back by --resume; ~3 GB, inside time_to_target's 30 s stop grace): resumed from an empty replay, the
+# stop, copied back by --resume; ~3 GB, so the stop's grace before a SIGKILL is 90 s): resumed from an empty replay, the
 # three G1 runs at 63b0c75 fell from mean level 1.3-2.1 to 0.4-0.7 and were back at 1.2-1.4 by 865-892 s.
 # KEEP_REPLAY=0: off.
 case $CONFIG in
   mjx_*|*_ppo) ;;
-  *) [ "${KEEP_REPLAY:-1}" = 1 ] && extra+=("--extra=--keep_replay") ;;
+  *) [ "${KEEP_REPLAY:-1}" = 1 ] && extra+=("--extra=--keep_replay" --stop_grace 90) ;;
 esac
 python3 bench/time_to_target.py --only "$CONFIG" --seed $SEEDS --max_seconds "${MAXS:-480}" --commit "${COMMIT:-unknown}" \
   --runs_dir "$RUNS" --metrics_dir "$OUT/metrics" --out "$OUT/terrain.json" "${extra[@]}" \

@@ -145,6 +145,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, nargs="*", default=[0], help="seeds (each a separate run)")
     ap.add_argument("--target", type=float, default=25.0, help="evaluation return to reach (Go1 configurations)")
     ap.add_argument("--max_seconds", type=float, default=540.0, help="budget per run, from its launch")
+    ap.add_argument("--stop_grace", type=float, default=30.0,
+                    help="seconds between the SIGTERM that stops a run and a SIGKILL (a run with --keep_replay "
+                         "writes its replay rings, GBs, in them)")
     ap.add_argument("--num_workers", type=int, default=None,
                     help="workers for heterogeneous runs (default: the config's, else 15)")
     ap.add_argument("--envs_per_worker", type=int, default=None,
@@ -404,7 +407,7 @@ def run_one(name: str, seed: int, args: argparse.Namespace, cfg: dict[str, Any] 
                     stopped_by = "max_seconds"
                     break
         finally:
-            _stop(proc)
+            _stop(proc, args.stop_grace)
             if args.compilation_cache == "cold":
                 shutil.rmtree(cache, ignore_errors=True)
     rows += reader.new_rows()

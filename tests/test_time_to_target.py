@@ -186,6 +186,30 @@ def test_run_one_stops_at_its_goals_and_appends(tmp_path):
     assert data["records"][0]["machine"]["cpus_usable"] >= 1 and len(data["records"][0]["source_digest"]) == 16
 
 
+def test_stop_waits_its_grace_for_an_orderly_stop_then_kills(tmp_path):
+    """A run that takes its time after SIGTERM (a trainer writing its replay rings) finishes within the grace; one
+    that ignores SIGTERM is killed once the grace is over."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    def launch(body):
+        proc = subprocess.Popen([sys.executable, "-c", "import signal, sys, time\n" + body], start_new_session=True)
+        time.sleep(0.5)  # the handler installed
+        return proc
+
+    slow = launch("signal.signal(signal.SIGTERM, lambda *a: (time.sleep(1.0), sys.exit(3)))\ntime.sleep(60)")
+    ttt._stop(slow, grace=10.0)
+    assert slow.returncode == 3  # its own exit, after the 1 s it took
+    deaf = launch("signal.signal(signal.SIGTERM, signal.SIG_IGN)\ntime.sleep(60)")
+    t0 = time.time()
+    ttt._stop(deaf, grace=1.0)
+    assert deaf.returncode == -signal.SIGKILL and time.time() - t0 < 5
+    assert ttt.parse_args(["--only", "mjx_ppo"]).stop_grace == 30.0
+    assert ttt.parse_args(["--only", "mjx_ppo", "--stop_grace", "90"]).stop_grace == 90.0
+
+
 def test_cli_requires_a_configuration(capsys):
     with pytest.raises(SystemExit):
         ttt.parse_args([])
