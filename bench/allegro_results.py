@@ -149,8 +149,9 @@ def plot(records: list[dict], path: str) -> int:
         ax.set_ylim(bottom=0)
     # below the panels, where it covers no curve
     handles, labels = ax_rate.get_legend_handles_labels()
-    rows = -(-len(labels) // 4)
-    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    columns = 4
+    fig.legend(handles, labels, loc="lower center", ncol=columns, fontsize=8, frameon=False)
+    rows = -(-len(labels) // columns)
     fig.suptitle("Allegro in-hand rotation: evaluations per seed", fontsize=10)
     fig.tight_layout(rect=(0, 0.05 * rows, 1, 1))
     fig.savefig(path, dpi=110)

@@ -73,7 +73,8 @@ def test_the_shaped_and_corrected_pick_jobs_say_so(tmp_path):
         _report(runs, f"{job}_eval40_600.json", 0.5)
     subprocess.run([sys.executable, SCRIPT, str(runs), "--out", str(out), "--commit", "abc", "--machine", "2x H200"],
                    check=True, capture_output=True)
-    recs = {r["job"]: (r["reward"], r["interventions"]) for r in json.loads(out.read_text())}
-    assert {r["machine"] for r in json.loads(out.read_text())} == {"2x H200"}
+    written = json.loads(out.read_text())
+    recs = {r["job"]: (r["reward"], r["interventions"]) for r in written}
+    assert {r["machine"] for r in written} == {"2x H200"}
     assert [recs[j] for j in jobs] == [("dense", False), ("dense", True), ("dense", False), ("success", False),
                                        ("success", False)]

@@ -6,7 +6,11 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import signal
+import subprocess
+import sys
 import textwrap
+import time
 
 import pytest
 
@@ -186,14 +190,9 @@ def test_run_one_stops_at_its_goals_and_appends(tmp_path):
     assert data["records"][0]["machine"]["cpus_usable"] >= 1 and len(data["records"][0]["source_digest"]) == 16
 
 
-def test_stop_waits_its_grace_for_an_orderly_stop_then_kills(tmp_path):
+def test_stop_waits_its_grace_for_an_orderly_stop_then_kills():
     """A run that takes its time after SIGTERM (a trainer writing its replay rings) finishes within the grace; one
     that ignores SIGTERM is killed once the grace is over."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
     def launch(body):
         proc = subprocess.Popen([sys.executable, "-c", "import signal, sys, time\n" + body], start_new_session=True)
         time.sleep(0.5)  # the handler installed
